@@ -1,0 +1,125 @@
+"""Headless Rerun viewer screenshots (needs Vulkan; lavapipe from mesa-vulkan-drivers works)."""
+
+from __future__ import annotations
+
+import ctypes.util
+import os
+from pathlib import Path
+
+import numpy as np
+import pytest
+
+rr = pytest.importorskip("rerun")
+rrb = pytest.importorskip("rerun.blueprint")
+Image = pytest.importorskip("PIL.Image")
+
+from wfviz.record.screenshot import ScreenshotError, render_screenshot  # noqa: E402
+
+_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/usr/local/share/vulkan/icd.d", "/etc/vulkan/icd.d")
+
+
+def _vulkan_missing() -> str | None:
+    """Why the Vulkan software driver is unusable here, or None if it looks installed."""
+    if ctypes.util.find_library("vulkan") is None:
+        return "Vulkan loader (libvulkan1) not installed"
+    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
+        return None
+    if not any(Path(d).glob("lvp_icd*.json") for d in _ICD_DIRS):
+        return "Vulkan software driver lavapipe (mesa-vulkan-drivers) not installed"
+    return None
+
+
+needs_vulkan = pytest.mark.skipif(_vulkan_missing() is not None, reason=str(_vulkan_missing()))
+
+W, H = 1200, 800
+
+
+def _dot_x(f: int) -> float:
+    return 20.0 + 12.0 * f
+
+
+def _make_rrd(path: Path) -> Path:
+    rec = rr.RecordingStream("wfviz_test")
+    bp = rrb.Blueprint(
+        rrb.Horizontal(rrb.Spatial2DView(origin="camera", name="camera"), rrb.TimeSeriesView(origin="timing"))
+    )
+    rec.save(str(path), default_blueprint=bp)
+    rng = np.random.default_rng(0)
+    for f in range(20):
+        rec.set_time("frame", sequence=f)
+        rec.log("camera/image", rr.Image((rng.random((256, 320)) * 60000).astype(np.uint16)))
+        rec.log("camera/detections", rr.Points2D([[_dot_x(f), 60]], radii=4, colors=[255, 0, 0]))
+        rec.log("timing/total", rr.Scalars(1.0 + 0.1 * f))
+    rec.flush()
+    rec.disconnect()
+    return path
+
+
+def _longest_run(idx: np.ndarray, max_gap: int = 4) -> tuple[int, int]:
+    """Longest stretch of sorted indices with gaps of at most `max_gap`, as (first, last + 1)."""
+    assert idx.size, "no camera image (noise) visible in the screenshot"
+    splits = np.flatnonzero(np.diff(idx) > max_gap) + 1
+    runs = np.split(idx, splits)
+    best = max(runs, key=lambda r: int(r[-1] - r[0]))
+    return int(best[0]), int(best[-1]) + 1
+
+
+def _noise_box(rgb: np.ndarray) -> tuple[int, int, int, int]:
+    """Bounding box (y0, y1, x0, x1) of the noisy camera image: rows/cols dense in sharp pixel jumps."""
+    gray = rgb.astype(np.int32).mean(axis=2)
+    jumps = np.abs(np.diff(gray, axis=1)) > 60
+    y0, y1 = _longest_run(np.flatnonzero(jumps.mean(axis=1) > 0.15))
+    x0, x1 = _longest_run(np.flatnonzero(jumps[y0:y1].mean(axis=0) > 0.3))
+    return y0, y1, x0, x1 + 1
+
+
+def _red_dot_x(rgb: np.ndarray, box: tuple[int, int, int, int]) -> float:
+    y0, y1, x0, x1 = box
+    a = rgb[y0:y1, x0:x1].astype(np.int32)
+    red = np.argwhere((a[..., 0] > 200) & (a[..., 1] < 60) & (a[..., 2] < 60))
+    assert len(red) >= 4, "red detection point not drawn inside the camera image"
+    return float(red[:, 1].mean())
+
+
+@needs_vulkan
+def test_render_screenshot_shows_views_at_frame(tmp_path: Path) -> None:
+    rrd = _make_rrd(tmp_path / "rec.rrd")
+    early = render_screenshot(rrd, tmp_path / "f2.png", frame=2, width=W, height=H, timeout=120)
+    late = render_screenshot(rrd, tmp_path / "f17.png", frame=17, width=W, height=H, timeout=120)
+
+    for png in (early, late):
+        img = Image.open(png)
+        assert abs(img.width - W) <= 4 and abs(img.height - H) <= 4, img.size
+        rgb = np.asarray(img.convert("RGB"))
+        assert rgb.reshape(-1, 3).std(axis=0).max() > 10, "screenshot is blank / uniform"
+
+    rgb_early = np.asarray(Image.open(early).convert("RGB"))
+    rgb_late = np.asarray(Image.open(late).convert("RGB"))
+    box = _noise_box(rgb_early)
+    y0, y1, x0, x1 = box
+    # The 320x256 camera image fills a good part of the left view of the blueprint's split.
+    assert (x1 - x0) > W * 0.2 and (y1 - y0) > H * 0.2, box
+    assert x1 <= W * 0.75, f"camera image not in the left half of the layout: {box}"
+    area = rgb_early[y0:y1, x0:x1].astype(np.int32)
+    assert area.std() > 30, "camera image area is uniform"
+
+    # The time cursor was honoured: the detection moved right by 15 frames * 12 image px.
+    shift_px = _red_dot_x(rgb_late, box) - _red_dot_x(rgb_early, box)
+    expected = (_dot_x(17) - _dot_x(2)) * (x1 - x0) / 320
+    assert shift_px == pytest.approx(expected, rel=0.25), (shift_px, expected)
+
+
+@needs_vulkan
+def test_render_screenshot_unknown_timeline(tmp_path: Path) -> None:
+    rrd = _make_rrd(tmp_path / "rec.rrd")
+    with pytest.raises(ScreenshotError, match="timeline 'nope'"):
+        render_screenshot(rrd, tmp_path / "x.png", frame=1, timeline="nope", width=640, height=480)
+    assert not (tmp_path / "x.png").exists()
+
+
+def test_render_screenshot_missing_viewer(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    rrd = tmp_path / "rec.rrd"
+    rrd.write_bytes(b"")
+    monkeypatch.setenv("RERUN_CLI_PATH", str(tmp_path / "no-such-rerun"))
+    with pytest.raises(ScreenshotError, match="viewer binary not found"):
+        render_screenshot(rrd, tmp_path / "x.png")

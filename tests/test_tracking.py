@@ -1,0 +1,108 @@
+"""Kalman filter and track management against hand-computed numbers and scripted scenes."""
+
+from __future__ import annotations
+
+import numpy as np
+
+from wfviz import kalman
+from wfviz.config import KalmanConfig, TrackingConfig
+from wfviz.tracking import TrackManager, extrapolate
+
+
+def test_one_kalman_step_matches_hand_computation():
+    m = kalman.CVModel.make(q=0.2, r=0.4)
+    x = np.array([[10.0, 20.0, 1.0, -2.0]])
+    P = np.eye(4)[None] * 1.0
+    xp, Pp = kalman.predict(x, P, m)
+    # x⁻ = Φx: position + velocity; P⁻ = ΦPΦᵀ + Q
+    assert np.allclose(xp, [[11.0, 18.0, 1.0, -2.0]])
+    # ΦPΦᵀ with P = I: [[2,0,1,0],[0,2,0,1],[1,0,1,0],[0,1,0,1]] + 0.2 I
+    assert np.allclose(Pp[0], [[2.2, 0, 1, 0], [0, 2.2, 0, 1], [1, 0, 1.2, 0], [0, 1, 0, 1.2]])
+    z = np.array([[12.0, 18.5]])
+    xu, Pu, nu = kalman.update(xp, Pp, z, m)
+    assert np.allclose(nu, [[1.0, 0.5]])
+    # S = 2.2 + 0.4 = 2.6; K_pos = 2.2/2.6, K_vel = 1/2.6
+    assert np.allclose(xu, [[11 + 2.2 / 2.6, 18 + 0.5 * 2.2 / 2.6, 1 + 1 / 2.6, -2 + 0.5 / 2.6]])
+    assert np.isclose(Pu[0, 0, 0], 2.2 - 2.2 * 2.2 / 2.6)
+    assert np.isclose(Pu[0, 2, 2], 1.2 - 1 / 2.6)
+    assert np.isclose(Pu[0, 0, 2], 1 - 2.2 / 2.6)
+
+
+def test_extrapolation_eq15_reading():
+    # s(k) = s(k-1) + (s(k-1) - s(k-3)) / 2: constant velocity is continued exactly
+    assert extrapolate([(0.0, 0.0), (2.0, 1.0), (4.0, 2.0)]) == (6.0, 3.0)
+
+
+def _run(manager, frames):
+    events = []
+    for f, dets in enumerate(frames):
+        preds = manager.predict(f)
+        xy = np.array(dets, dtype=float).reshape(-1, 2)
+        pairs = manager.associate(preds, xy)
+        used = np.zeros(len(xy), bool)
+        used[list(pairs.values())] = True
+        claimed = manager.claimed(preds, xy)
+        events += manager.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used & ~claimed])
+    return events
+
+
+def test_confirmation_after_six_hits_and_deletion_after_three_misses():
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    frames = [[(50 + 1.0 * k, 40 + 0.5 * k)] for k in range(8)] + [[]] * 3
+    events = _run(mgr, frames[:5])
+    assert not any(e.kind == "confirmed" for e in events)          # 5 hits: still tentative
+    events = _run_from(mgr, frames, 5, 6)
+    assert [e.kind for e in events] == ["confirmed"]                  # the 6th hit confirms
+    events = _run_from(mgr, frames, 6, 10)
+    assert not any(e.kind == "deleted" for e in events)               # 2 misses: kept
+    events = _run_from(mgr, frames, 10, 11)
+    assert [e.kind for e in events] == ["deleted"]                    # 3rd consecutive miss
+    assert mgr.tracks == []
+
+
+def _run_from(mgr, frames, a, b):
+    events = []
+    for f in range(a, b):
+        preds = mgr.predict(f)
+        xy = np.array(frames[f], dtype=float).reshape(-1, 2)
+        pairs = mgr.associate(preds, xy)
+        used = np.zeros(len(xy), bool)
+        used[list(pairs.values())] = True
+        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used])
+    return events
+
+
+def test_no_measurement_goes_to_two_tracks():
+    mgr = TrackManager(KalmanConfig(), TrackingConfig(safety_distance=0.0))
+    _run(mgr, [[(10, 10), (14, 10)]] * 7)
+    preds = mgr.predict(7)
+    pairs = mgr.associate(preds, np.array([[12.0, 10.0]]))
+    assert len(pairs) == 1
+
+
+def test_crossing_keeps_both_identities():
+    """Two targets crossing at ~110°: meeting mode carries both identities through."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    rng = np.random.default_rng(0)
+    n = 60
+    a = np.array([[20 + 2.0 * k, 50 + 1.2 * k] for k in range(n)])
+    b = np.array([[20 + 2.0 * k, 122 - 1.2 * k] for k in range(n)])
+    ids_a, ids_b, meeting_seen = [], [], False
+    for f in range(n):
+        dets = [a[f], b[f]] if np.hypot(*(a[f] - b[f])) > 3 else [(a[f] + b[f]) / 2]
+        xy = np.array(dets) + rng.normal(0, 0.15, (len(dets), 2))
+        preds = mgr.predict(f)
+        pairs = mgr.associate(preds, xy)
+        used = np.zeros(len(xy), bool)
+        used[list(pairs.values())] = True
+        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used & ~mgr.claimed(preds, xy)])
+        states = [s for s in mgr.states() if s.confirmed]
+        meeting_seen |= any(s.meeting for s in states)
+        for truth, ids in ((a[f], ids_a), (b[f], ids_b)):
+            d = sorted((np.hypot(s.x - truth[0], s.y - truth[1]), s.track_id) for s in states)
+            if d and d[0][0] < 2.0 and (len(d) == 1 or d[1][0] > 4.0):  # unambiguous
+                ids.append(d[0][1])
+    assert meeting_seen
+    assert len(set(ids_a)) == 1 and len(set(ids_b)) == 1 and ids_a[0] != ids_b[0]
+    assert len(ids_a) > 40 and len(ids_b) > 40
+    assert len([s for s in mgr.states() if s.confirmed]) == 2

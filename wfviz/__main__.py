@@ -1,0 +1,3 @@
+from wfviz.cli import main
+
+main()

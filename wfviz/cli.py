@@ -1,0 +1,199 @@
+"""Command line: ``wfviz record | track | demo | config``. Wiring only; no stage work here."""
+
+from __future__ import annotations
+
+import sys
+from pathlib import Path
+from typing import Annotated, Optional
+
+import typer
+from rich.console import Console
+from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+from wfviz.clip import ClipError, open_clip
+from wfviz.config import ConfigError, GEWCConfig, config_to_toml, load_config
+from wfviz.frames import Clip
+from wfviz.outputs import OutputError
+from wfviz.run import RunSummary, run
+from wfviz.trackers import TRACKERS, make_tracker
+
+app = typer.Typer(add_completion=False, no_args_is_help=True,
+                  help="Wide-field IR small-target tracking with every stage recorded to Rerun.")
+err = Console(stderr=True)
+out = Console()
+EXIT_BAD_INPUT = 2
+STATE = {"debug": False}
+
+TrackerOpt = Annotated[str, typer.Option("--tracker", help=f"Tracker: {', '.join(TRACKERS)}.")]
+ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="TOML config file (see `wfviz config`).")]
+StartOpt = Annotated[int, typer.Option("--start", min=0, help="First frame (0-based).")]
+StopOpt = Annotated[Optional[int], typer.Option("--stop", min=1, help="Stop before this frame.")]
+FpsOpt = Annotated[Optional[float], typer.Option("--fps", min=0.001, help="Override the clip's frame rate.")]
+ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log images every N frames.")]
+NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
+
+
+def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
+    err.print(f"[bold red]wfviz: error:[/] {message}", highlight=False, soft_wrap=True)
+    raise typer.Exit(code)
+
+
+def _guarded(fn):  # noqa: ANN001, ANN202
+    """Turn known bad-input errors into one-line messages (tracebacks only with --debug)."""
+    import functools
+
+    @functools.wraps(fn)
+    def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+        try:
+            return fn(*args, **kwargs)
+        except (ClipError, ConfigError, OutputError, ValueError) as exc:
+            if STATE["debug"]:
+                raise
+            _fail(str(exc))
+    return wrapper
+
+
+def _tracker(name: str, config: Path | None):  # noqa: ANN202
+    if name not in TRACKERS:
+        raise ValueError(f"unknown tracker '{name}' (available: {', '.join(TRACKERS)})")
+    return make_tracker(name, load_config(config))
+
+
+def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
+             stop: int | None, image_every: int, source: str) -> RunSummary:
+    total = clip.n_frames
+    if total is not None:
+        total = max(0, min(total, stop if stop is not None else total) - start)
+    options = None
+    if recording is not None:
+        options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
+                       trail_length=tracker.config.tracking.trail_length)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
+                  console=err, transient=True, disable=not err.is_terminal) as progress:
+        task = progress.add_task(clip.name, total=total, fps=0.0)
+        count = [0]
+        import time
+        t0 = time.perf_counter()
+
+        def tick(frame, result) -> None:  # noqa: ANN001
+            count[0] += 1
+            progress.update(task, advance=1, fps=count[0] / max(time.perf_counter() - t0, 1e-9))
+
+        summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
+                      start=start, stop=stop, on_frame=tick)
+    if summary.frames == 0:
+        raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
+    return summary
+
+
+def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) -> None:
+    state = "[yellow]interrupted[/]" if summary.interrupted else "done"
+    out.print(f"{state}: {summary.frames} frames in {summary.seconds:.2f} s "
+              f"({summary.fps:.1f} fps overall, {summary.tracker_ms:.2f} ms/frame tracking), "
+              f"{len(summary.confirmed)} tracks confirmed", highlight=False)
+    if tracks is not None:
+        out.print(f"  tracks:    {tracks}", highlight=False)
+    if recording is not None:
+        out.print(f"  recording: {recording}", highlight=False)
+        out.print(f"  open it:   rerun {recording}", highlight=False)
+    if summary.interrupted:
+        raise typer.Exit(130)
+
+
+@app.callback()
+def _main(debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False) -> None:
+    STATE["debug"] = debug
+
+
+@app.command()
+@_guarded
+def record(
+    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd).")] = None,
+    tracks: Annotated[Optional[Path], typer.Option("--tracks", help="Tracks CSV (default: beside the recording).")] = None,
+    tracker: TrackerOpt = "gewc",
+    config: ConfigOpt = None,
+    start: StartOpt = 0,
+    stop: StopOpt = None,
+    fps: FpsOpt = None,
+    image_every: ImageEveryOpt = 1,
+    no_images: NoImagesOpt = False,
+) -> None:
+    """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
+    trk = _tracker(tracker, config)
+    source = open_clip(clip, fps=fps)
+    output = output or Path("recordings") / f"{source.name}-{tracker}.rrd"
+    tracks = tracks or output.with_suffix(".csv")
+    summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
+                       image_every=0 if no_images else image_every, source=str(clip))
+    _report(summary, tracks, output)
+
+
+@app.command()
+@_guarded
+def track(
+    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    tracks: Annotated[Path, typer.Option("--tracks", help="Tracks CSV to write.")],
+    tracker: TrackerOpt = "gewc",
+    config: ConfigOpt = None,
+    start: StartOpt = 0,
+    stop: StopOpt = None,
+    fps: FpsOpt = None,
+) -> None:
+    """Track a clip and write the tracks CSV only (no recording)."""
+    trk = _tracker(tracker, config)
+    source = open_clip(clip, fps=fps)
+    summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
+                       image_every=0, source=str(clip))
+    _report(summary, tracks, None)
+
+
+@app.command()
+@_guarded
+def demo(
+    output: Annotated[Path, typer.Option("-o", "--output", help="Recording (.rrd).")] = Path("recordings/demo-gewc.rrd"),
+    frames: Annotated[int, typer.Option("--frames", min=1, help="Clip length.")] = 160,
+    seed: Annotated[int, typer.Option("--seed", help="Noise seed.")] = 0,
+    save_clip: Annotated[Optional[Path], typer.Option("--save-clip", help="Also write the clip as 16-bit PNGs + truth.csv here.")] = None,
+    config: ConfigOpt = None,
+    image_every: ImageEveryOpt = 1,
+) -> None:
+    """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
+    from wfviz.evaluate import read_points, score_targets
+    from wfviz.synth.demo import demo_clip
+
+    trk = _tracker("gewc", config)
+    clip = demo_clip(seed=seed, n_frames=frames)
+    if save_clip is not None:
+        clip.save(save_clip)
+        out.print(f"  clip:      {save_clip}", highlight=False)
+    tracks = output.with_suffix(".csv")
+    truth = output.with_name(output.stem + "-truth.csv")
+    summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
+                       image_every=image_every, source=f"built-in demo (seed {seed}, {frames} frames)")
+    clip.write_truth_csv(truth)
+    _report(summary, tracks, output)
+    out.print(f"  truth:     {truth}", highlight=False)
+    for s in score_targets(read_points(tracks, "track_id", confirmed_only=True),
+                           read_points(truth, "target_id")):
+        out.print(f"  target {s.target_id}: tracked {s.matched}/{s.frames} frames by track "
+                  f"{s.main_track}, RMS error {s.rms_error:.2f} px, max {s.max_error:.2f} px, "
+                  f"{s.id_switches} identity switches", highlight=False)
+
+
+@app.command("config")
+def show_config(tracker: TrackerOpt = "gewc") -> None:
+    """Print the default configuration as TOML (edit it and pass it with --config)."""
+    if tracker not in TRACKERS:
+        _fail(f"unknown tracker '{tracker}' (available: {', '.join(TRACKERS)})")
+    sys.stdout.write(config_to_toml(GEWCConfig()))
+
+
+def main() -> None:
+    """Console-script entry point."""
+    app()
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,354 @@
+"""Open a recorded clip (video file, image folder or .npy stack) as a streamed ``Clip``.
+
+Video luma (measured on opencv-python-headless 5.0, FFmpeg backend). With
+``CAP_PROP_CONVERT_RGB = 0`` the backend returns the decoder's first plane as an (H, W)
+uint8 array; for 8-bit planar YUV and grey streams that is the Y plane. It logs
+"Unknown/unsupported picture format ... treated as 8UC1" once per frame, so reads on that
+path run with OpenCV logging at ERROR. OpenCV exposes neither the stream's colour range
+nor yuv vs yuvj (both report ``I420``), so ``VideoClip`` measures it: on open it decodes
+the first few frames both raw and as BGR, and picks one of these modes:
+
+* ``"raw"``: the Y plane as stored. Used when OpenCV's BGR output equals Y (full-range
+  streams: MJPG, FFV1 grey), or when a limited-range stream holds Y values well outside
+  16-235. Such values mean the producer stored sensor values in Y directly, and the BGR
+  conversion would stretch them and clip them to 0/255.
+* ``"expand"``: Y mapped 16-235 -> 0-255 with a lookup table, the inverse of the
+  compression OpenCV's own writer (and standard encoders) apply. Gives the same values as
+  OpenCV's BGR output, without the colour conversion.
+* ``"bgr"`` (fallback): BGR output reduced with ``cv2.cvtColor(BGR2GRAY)``. Used when the
+  backend is not FFmpeg, the pixel format is not 8-bit planar YUV or grey, or the raw plane
+  does not match the decoded picture. Values are stretched, and clipped outside 16-235 for
+  limited-range streams.
+
+Pass ``luma=`` to ``VideoClip`` to force a mode.
+"""
+
+from __future__ import annotations
+
+import itertools
+import math
+from collections.abc import Iterable, Iterator
+from contextlib import contextmanager
+from pathlib import Path
+from typing import Literal
+
+import cv2
+import numpy as np
+
+from wfviz.frames import Clip, Frame
+
+VIDEO_SUFFIXES = (".avi", ".mkv", ".mov", ".mp4")
+IMAGE_SUFFIXES = (".bmp", ".png", ".tif", ".tiff")
+DEFAULT_FPS = 20.0
+SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
+             f"({' '.join(IMAGE_SUFFIXES)}) or a .npy stack")
+
+LumaMode = Literal["auto", "raw", "expand", "bgr"]
+#: Codec pixel-format tags (``CAP_PROP_CODEC_PIXEL_FORMAT``) whose first plane is 8-bit luma.
+_PLANAR_LUMA_TAGS = frozenset({"I420", "IYUV", "YV12", "Y41B", "Y42B", "YV16", "444P", "YV24",
+                               "440P", "YUV9", "YVU9", "NV12", "NV21", "Y800", "Y8  ", "GREY"})
+_EXPAND = np.clip(np.round((np.arange(256) - 16) * 255 / 219), 0, 255).astype(np.uint8)
+_PROBE_FRAMES = 5
+_FIT_TOLERANCE = 3.0  # mean levels: a raw plane further than this from BGR is not luma
+_RANGE_MARGIN = 8  # levels outside 16-235 that lossy coding of limited-range video can't reach
+_RANGE_FRACTION = 1e-3  # share of probe pixels beyond that margin that proves raw sensor Y
+
+
+class ClipError(ValueError):
+    """Bad clip input; the message is one line: ``"<path>: <problem>"``."""
+
+
+def open_clip(path: str | Path, fps: float | None = None) -> Clip:
+    """Open a video file, a folder of images or a .npy stack; ``fps`` overrides the source's."""
+    p = Path(path)
+    if not p.exists():
+        raise ClipError(f"{p}: no such file or folder")
+    if p.is_dir():
+        return ImageFolderClip(p, fps)
+    suffix = p.suffix.lower()
+    if suffix in VIDEO_SUFFIXES:
+        return VideoClip(p, fps)
+    if suffix == ".npy":
+        return NpyClip(p, fps)
+    raise ClipError(f"{p}: unsupported input; expected {SUPPORTED}")
+
+
+class _ClipBase:
+    """Read-only ``Clip`` properties shared by the readers."""
+
+    def __init__(self, path: Path, name: str, fps: float, n_frames: int | None,
+                 shape: tuple[int, int]) -> None:
+        self.path = path
+        self._name, self._fps, self._n_frames, self._shape = name, fps, n_frames, shape
+
+    @property
+    def name(self) -> str:
+        """Short name: the file stem or folder name."""
+        return self._name
+
+    @property
+    def fps(self) -> float:
+        """Frames per second used for timestamps."""
+        return self._fps
+
+    @property
+    def n_frames(self) -> int | None:
+        """Number of frames if known in advance, else None."""
+        return self._n_frames
+
+    @property
+    def shape(self) -> tuple[int, int]:
+        """(rows, columns) of every frame."""
+        return self._shape
+
+    def __repr__(self) -> str:
+        return (f"{type(self).__name__}({str(self.path)!r}, fps={self.fps:g}, "
+                f"n_frames={self.n_frames}, shape={self.shape})")
+
+    def _frame(self, index: int, image: np.ndarray, source: str) -> Frame:
+        """Wrap ``image`` as frame ``index``, checking it matches the clip's shape."""
+        if image.shape != self._shape:
+            raise ClipError(f"{source}: frame {index} is {image.shape[1]}x{image.shape[0]}, "
+                            f"expected {self._shape[1]}x{self._shape[0]}")
+        return Frame(index, index / self._fps, np.ascontiguousarray(image))
+
+
+class ImageFolderClip(_ClipBase):
+    """A folder of PNG/TIFF/BMP images in file-name order; other and hidden files are skipped."""
+
+    def __init__(self, folder: Path, fps: float | None = None) -> None:
+        files = sorted((p for p in folder.iterdir() if p.is_file()
+                        and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")),
+                       key=lambda p: p.name)
+        if not files:
+            raise ClipError(f"{folder}: no images ({' '.join(IMAGE_SUFFIXES)}) in folder")
+        first = _read_image(files[0], 0)
+        self.files = files
+        self.dtype = first.dtype
+        name = folder.name or folder.resolve().name
+        super().__init__(folder, name, _fps(folder, fps, None), len(files), first.shape[:2])
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop``, reading one image at a time."""
+        for index in _indices(start, stop, len(self.files)):
+            path = self.files[index]
+            image = _read_image(path, index)
+            if image.shape != self.shape or image.dtype != self.dtype:
+                raise ClipError(f"{path}: image {index} is {_describe(image.shape, image.dtype)}, "
+                                f"but {self.files[0].name} is {_describe(self.shape, self.dtype)}")
+            yield self._frame(index, image, str(path))
+
+
+class NpyClip(_ClipBase):
+    """A (T, H, W) or (H, W) .npy array, memory-mapped and copied out one frame at a time.
+
+    uint8, uint16 and float32 are kept; bool becomes uint8; every other integer or float
+    type becomes float32 (exact for integers up to 2**24 in magnitude, so signed data keeps
+    its sign). Object, string, complex and structured arrays raise ``ClipError``.
+    """
+
+    def __init__(self, path: Path, fps: float | None = None) -> None:
+        array = self._load(path)
+        if array.ndim not in (2, 3) or 0 in array.shape:
+            raise ClipError(f"{path}: expected a (T, H, W) or (H, W) array, got {array.shape}")
+        self.dtype = _frame_dtype(array.dtype, path)
+        n_frames = 1 if array.ndim == 2 else array.shape[0]
+        super().__init__(path, path.stem, _fps(path, fps, None), n_frames, array.shape[-2:])
+
+    @staticmethod
+    def _load(path: Path) -> np.ndarray:
+        """Memory-map ``path`` read-only, turning numpy's load errors into ``ClipError``."""
+        try:
+            return np.load(path, mmap_mode="r", allow_pickle=False)
+        except (ValueError, OSError, EOFError) as exc:
+            problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
+            raise ClipError(f"{path}: cannot load .npy array ({problem})") from None
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop`` as independent C-contiguous copies."""
+        array = self._load(self.path)
+        stack = array[np.newaxis] if array.ndim == 2 else array
+        for index in _indices(start, stop, stack.shape[0]):
+            image = np.array(stack[index], dtype=self.dtype, order="C", copy=True)
+            yield self._frame(index, image, str(self.path))
+
+
+class VideoClip(_ClipBase):
+    """A video file read with ``cv2.VideoCapture``, as luma (see the module docstring)."""
+
+    def __init__(self, path: Path, fps: float | None = None, luma: LumaMode = "auto") -> None:
+        if luma not in ("auto", "raw", "expand", "bgr"):
+            raise ValueError(f"luma must be auto, raw, expand or bgr, got {luma!r}")
+        cap = _capture(path)
+        try:
+            native_fps = cap.get(cv2.CAP_PROP_FPS)
+            count = cap.get(cv2.CAP_PROP_FRAME_COUNT)
+            raw_ok = (cap.getBackendName() == "FFMPEG"
+                      and _fourcc(cap.get(cv2.CAP_PROP_CODEC_PIXEL_FORMAT)) in _PLANAR_LUMA_TAGS)
+        finally:
+            cap.release()
+        bgr = _read_some(path, "bgr", _PROBE_FRAMES)
+        raw = _read_some(path, "raw", len(bgr)) if raw_ok else []
+        self.luma: LumaMode = _choose_luma(raw, bgr) if luma == "auto" else luma
+        shape = bgr[0].shape[:2]
+        n_frames = int(count) if math.isfinite(count) and count > 0 else None
+        super().__init__(path, path.stem, _fps(path, fps, native_fps), n_frames, shape)
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        """Yield frames ``start <= index < stop`` from a fresh capture, seeking to ``start``.
+
+        Reads until ``stop`` or the end of the stream: ``n_frames`` is the container's
+        estimate, so it does not cut the pass short.
+        """
+        indices = _indices(start, stop, None)
+        if isinstance(indices, range) and not indices:
+            return
+        cap = _capture(self.path, self.luma)
+        try:
+            cap = _seek(cap, self.path, self.luma, start)
+            for index in indices:
+                image = _decode(cap, self.luma)
+                if image is None:
+                    return
+                yield self._frame(index, image, str(self.path))
+        finally:
+            cap.release()
+
+
+def _indices(start: int, stop: int | None, n: int | None) -> Iterable[int]:
+    """Frame indices ``start <= index < stop``, clamped to ``n`` when it is known."""
+    if start < 0 or (stop is not None and stop < 0):
+        raise ValueError(f"start and stop must be >= 0, got start={start}, stop={stop}")
+    if n is not None:
+        stop = n if stop is None else min(stop, n)
+    return itertools.count(start) if stop is None else range(start, stop)
+
+
+def _fps(path: Path, override: float | None, native: float | None) -> float:
+    """``override`` if given (must be positive), else a usable ``native`` fps, else 20."""
+    if override is not None:
+        if not (math.isfinite(override) and override > 0):
+            raise ClipError(f"{path}: fps must be a positive number, got {override}")
+        return float(override)
+    if native is not None and math.isfinite(native) and native > 0:
+        return float(native)
+    return DEFAULT_FPS
+
+
+def _frame_dtype(dtype: np.dtype, path: Path) -> np.dtype:
+    """The frame dtype for source ``dtype`` (see ``NpyClip``); ClipError if unsupported."""
+    if dtype in (np.uint8, np.uint16, np.float32):
+        return np.dtype(dtype)
+    if dtype == np.bool_:
+        return np.dtype(np.uint8)
+    if dtype.kind in "iuf" and dtype.fields is None:
+        return np.dtype(np.float32)
+    raise ClipError(f"{path}: unsupported pixel type {dtype}")
+
+
+def _read_image(path: Path, index: int) -> np.ndarray:
+    """Decode one image at full range and reduce it to 2-D luma."""
+    try:
+        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+    except cv2.error:
+        image = None
+    if image is None or image.size == 0:
+        raise ClipError(f"{path}: cannot decode image {index}")
+    if image.ndim == 3 and image.shape[2] in (3, 4):
+        code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
+        image = cv2.cvtColor(image, code)
+    elif image.ndim == 3 and image.shape[2] == 1:
+        image = image[:, :, 0]
+    if image.ndim != 2:
+        raise ClipError(f"{path}: image {index} has unsupported shape {image.shape}")
+    return image.astype(_frame_dtype(image.dtype, path), copy=False)
+
+
+def _describe(shape: tuple[int, ...], dtype: np.dtype) -> str:
+    """``"640x512 uint16"``."""
+    return f"{shape[1]}x{shape[0]} {dtype}"
+
+
+def _fourcc(code: float) -> str:
+    """The four characters of a FOURCC stored in a float (``""`` if none)."""
+    value = int(code)
+    return value.to_bytes(4, "little").decode("latin-1") if value > 0 else ""
+
+
+def _capture(path: Path, luma: LumaMode = "bgr") -> cv2.VideoCapture:
+    """An open capture of ``path``, returning the raw first plane unless ``luma`` is "bgr"."""
+    cap = cv2.VideoCapture(str(path))
+    if not cap.isOpened():
+        cap.release()
+        raise ClipError(f"{path}: cannot decode video (truncated or unsupported codec)")
+    if luma != "bgr":
+        cap.set(cv2.CAP_PROP_CONVERT_RGB, 0)
+    return cap
+
+
+@contextmanager
+def _quiet() -> Iterator[None]:
+    """Raise OpenCV's process-wide log level to ERROR for one read (silences the 8UC1 warning)."""
+    old = cv2.utils.logging.getLogLevel()
+    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    try:
+        yield
+    finally:
+        cv2.utils.logging.setLogLevel(old)
+
+
+def _decode(cap: cv2.VideoCapture, luma: LumaMode) -> np.ndarray | None:
+    """The next frame as luma in mode ``luma``, or None at the end of the stream."""
+    with _quiet():
+        ok, image = cap.read()
+    if not ok or image is None:
+        return None
+    if luma == "bgr":
+        return image if image.ndim == 2 else cv2.cvtColor(image, cv2.COLOR_BGR2GRAY)
+    return cv2.LUT(image, _EXPAND) if luma == "expand" else image
+
+
+def _read_some(path: Path, mode: Literal["raw", "bgr"], n: int) -> list[np.ndarray]:
+    """Up to ``n`` frames from the start: Y planes (``"raw"``) or BGR-derived grey."""
+    cap = _capture(path, mode)
+    try:
+        images = [im for im in (_decode(cap, mode) for _ in range(n)) if im is not None]
+    finally:
+        cap.release()
+    if mode == "bgr" and not images:
+        raise ClipError(f"{path}: cannot decode video (truncated or unsupported codec)")
+    return images
+
+
+def _choose_luma(raw: list[np.ndarray], grey: list[np.ndarray]) -> LumaMode:
+    """Pick "raw", "expand" or "bgr" by comparing Y planes with OpenCV's BGR-derived grey."""
+    if len(raw) != len(grey) or any(r.shape != g.shape or r.dtype != np.uint8
+                                    for r, g in zip(raw, grey)):
+        return "bgr"
+    y, g = np.stack(raw).astype(np.int16), np.stack(grey).astype(np.int16)
+    expanded = _EXPAND[y].astype(np.int16)
+    decisive = np.abs(expanded - y) >= 3  # pixels where the two range models differ
+    mask = decisive if decisive.any() else np.ones_like(decisive)
+    err_raw = float(np.abs(g - y)[mask].mean())
+    err_expand = float(np.abs(g - expanded)[mask].mean())
+    if min(err_raw, err_expand) > _FIT_TOLERANCE:
+        return "bgr"
+    outside = (y < 16 - _RANGE_MARGIN) | (y > 235 + _RANGE_MARGIN)
+    if err_expand < err_raw and outside.mean() <= _RANGE_FRACTION:
+        return "expand"
+    return "raw"
+
+
+def _seek(cap: cv2.VideoCapture, path: Path, luma: LumaMode, start: int) -> cv2.VideoCapture:
+    """Position ``cap`` at frame ``start``: seek, or re-open and skip if seeking misreports."""
+    if start == 0:
+        return cap
+    cap.set(cv2.CAP_PROP_POS_FRAMES, start)
+    if int(cap.get(cv2.CAP_PROP_POS_FRAMES)) == start:
+        return cap
+    cap.release()
+    cap = _capture(path, luma)
+    for _ in range(start):
+        if not cap.grab():
+            break
+    return cap

@@ -1,0 +1,65 @@
+"""Output files written atomically: to ``NAME.part``, renamed only when complete."""
+
+from __future__ import annotations
+
+import csv
+import os
+from pathlib import Path
+from typing import TextIO
+
+from wfviz.tracking import TrackState
+
+TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]
+
+
+class OutputError(OSError):
+    """An output path cannot be written (one-line message naming it)."""
+
+
+def part_path(path: Path) -> Path:
+    """The temporary name a file is written under until complete."""
+    return path.with_name(path.name + ".part")
+
+
+def check_writable(path: Path) -> None:
+    """Create the parent folder if needed and check a file can be written there."""
+    parent = path.parent
+    try:
+        parent.mkdir(parents=True, exist_ok=True)
+    except OSError as exc:
+        raise OutputError(f"{parent}: cannot create output folder ({exc.strerror})") from None
+    if path.is_dir():
+        raise OutputError(f"{path}: is a folder, expected a file name")
+    if not os.access(parent, os.W_OK):
+        raise OutputError(f"{parent}: output folder is not writable")
+
+
+def commit(path: Path) -> None:
+    """Rename ``path.part`` to ``path`` (replacing an older file)."""
+    os.replace(part_path(path), path)
+
+
+class TracksWriter:
+    """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track."""
+
+    def __init__(self, path: Path) -> None:
+        self.path = path
+        self._fh: TextIO = open(part_path(path), "w", newline="", encoding="utf-8")
+        self._csv = csv.writer(self._fh)
+        self._csv.writerow(TRACKS_HEADER)
+
+    def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
+        """Append the rows of one frame."""
+        self._csv.writerows(
+            (frame, t.track_id, f"{t.x:.3f}", f"{t.y:.3f}", int(t.confirmed),
+             f"{t.vx:.3f}", f"{t.vy:.3f}", int(t.meeting)) for t in tracks)
+
+    def close(self) -> None:
+        """Flush, close and rename into place."""
+        self._fh.close()
+        commit(self.path)
+
+    def abort(self) -> None:
+        """Close and remove the partial file."""
+        self._fh.close()
+        part_path(self.path).unlink(missing_ok=True)

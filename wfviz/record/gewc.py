@@ -1,0 +1,54 @@
+"""Rerun adapter for the GEWC tracker's own stages (see docs/recording.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from wfviz.record.recorder import Recorder, track_color
+from wfviz.trackers.gewc import GEWCResult
+
+MASK_COLOR = (255, 0, 255, 70)
+
+
+class GEWCRecorder(Recorder):
+    """Logs mask, horizon, residual, GEWC measurements and weights, Kalman scalars."""
+
+    def extra_views(self) -> rrb.View | rrb.Container:
+        return rrb.Tabs(rrb.BarChartView(origin="gewc", name="GEWC region weights"),
+                        rrb.TimeSeriesView(origin="detection", name="Detections"))
+
+    def log_stages(self, result: GEWCResult, images: bool) -> None:  # type: ignore[override]
+        rec = self.rec
+        if result.mask_changed:
+            rec.log("camera/mask", rr.AnnotationContext([
+                rr.ClassDescription(info=rr.AnnotationInfo(id=1, label="non-imaging", color=MASK_COLOR))]),
+                static=True)
+            rec.log("camera/mask", rr.SegmentationImage(result.mask.astype(np.uint8)), static=True)
+            c = result.circle
+            rec.log("camera/imaging_circle", rr.Boxes2D(
+                centers=[[c.cx, c.cy]] if c else np.zeros((0, 2)),
+                half_sizes=[[c.radius, c.radius]] if c else np.zeros((0, 2)),
+                labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3]), static=True)
+        if result.horizon_updated:
+            line = result.horizon.polyline() if result.horizon is not None else None
+            rec.log("camera/horizon", rr.LineStrips2D(
+                [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
+        if images:
+            rec.log("suppressed/image", rr.Image(result.suppressed))
+        m = result.measurements
+        rec.log("camera/centroids", rr.Points2D(
+            [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],
+            colors=[track_color(x.track_id) for x in m], radii=0.5))
+        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        for x in m:
+            if x.track_id in confirmed:
+                rec.log(f"gewc/{x.track_id}", rr.BarChart(np.asarray(x.weights, dtype=np.float64),
+                                                          color=track_color(x.track_id)))
+        for tid, nu in result.innovations.items():
+            if tid in confirmed:
+                rec.log(f"kalman/{tid}/innovation", rr.Scalars(float(np.hypot(*nu))))
+        for p in result.predictions:
+            if p.confirmed:
+                rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))

@@ -1,0 +1,153 @@
+"""Maps the stage results every tracker shares to Rerun entities (see docs/recording.md)."""
+
+from __future__ import annotations
+
+import colorsys
+from collections import deque
+from pathlib import Path
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from wfviz.frames import Frame
+from wfviz.trackers.base import FrameResult
+
+APPLICATION_ID = "wfviz"
+TENTATIVE_COLOR = (150, 150, 150, 160)
+DETECTION_COLOR = (255, 200, 0, 255)
+EVENT_LEVELS = {"born": "DEBUG", "confirmed": "INFO", "deleted": "WARN",
+                "meeting_on": "INFO", "meeting_off": "INFO"}
+
+
+def track_color(track_id: int) -> tuple[int, int, int]:
+    """A stable, well-separated colour for a track id (golden-ratio hue steps)."""
+    h = (track_id * 0.618033988749895) % 1.0
+    r, g, b = colorsys.hsv_to_rgb(h, 0.85, 1.0)
+    return int(r * 255), int(g * 255), int(b * 255)
+
+
+class Recorder:
+    """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
+
+    ``image_every`` logs the raw and stage images every N frames (0 = never); overlays,
+    scalars and text are logged every frame.
+    """
+
+    def __init__(self, path: Path, *, source: str, tracker: str, config_text: str,
+                 image_every: int = 1, trail_length: int = 60) -> None:
+        self.rec = rr.RecordingStream(APPLICATION_ID)
+        self.rec.save(path, default_blueprint=self.blueprint())
+        self.image_every = image_every
+        self._trails: dict[int, deque] = {}
+        self._trail_length = trail_length
+        self._labelled: set[int] = set()
+        self.frames_logged = 0
+        self.rec.log("config", rr.TextDocument(
+            f"# wfviz {tracker}\n\nSource: `{source}`\n\n```toml\n{config_text}\n```",
+            media_type=rr.MediaType.MARKDOWN), static=True)
+
+    # -- layout ---------------------------------------------------------------------------
+    def blueprint(self) -> rrb.Blueprint:
+        """Default layout: raw image with overlays, residual, time series, bars, log."""
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.Spatial2DView(origin="camera", name="Camera + overlays"),
+                    rrb.Spatial2DView(origin="suppressed", name="Background-suppressed",
+                                      contents=["$origin/**", "/camera/detections",
+                                                "/camera/gates", "/camera/predictions"]),
+                ),
+                rrb.Vertical(
+                    rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
+                    rrb.TimeSeriesView(origin="kalman", name="Kalman innovation / cov trace"),
+                    self.extra_views(),
+                    rrb.Tabs(rrb.TextLogView(origin="log", name="Track log"),
+                             rrb.TextDocumentView(origin="config", name="Config")),
+                ),
+                column_shares=[3, 2],
+            ),
+            rrb.TimePanel(timeline="frame"),
+            collapse_panels=False,
+        )
+
+    def extra_views(self) -> rrb.View | rrb.Container:
+        """Tracker-specific view(s) in the right column."""
+        return rrb.TimeSeriesView(origin="detection", name="Detections")
+
+    # -- per frame ------------------------------------------------------------------------
+    def log(self, frame: Frame, result: FrameResult) -> None:
+        """Log one frame's results on the ``frame`` and ``time`` timelines."""
+        rec = self.rec
+        rec.set_time("frame", sequence=frame.index)
+        rec.set_time("time", duration=frame.time)
+        images = self.image_every > 0 and self.frames_logged % self.image_every == 0
+        if images:
+            rec.log("camera/image", rr.Image(frame.image))
+        self._log_common(result)
+        self.log_stages(result, images)
+        self.frames_logged += 1
+
+    def log_stages(self, result: FrameResult, images: bool) -> None:
+        """Tracker-specific stages; overridden by each tracker's adapter."""
+
+    def _log_common(self, result: FrameResult) -> None:
+        rec = self.rec
+        d = result.detections
+        rec.log("camera/detections", rr.Points2D(
+            d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR),
+            rr.AnyValues(area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64)))
+        rec.log("detection/count", rr.Scalars(float(len(d))))
+        rec.log("detection/threshold", rr.Scalars(float(d.threshold) if np.isfinite(d.threshold) else np.nan))
+        self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])
+        preds = result.predictions
+        ids = [p.track_id for p in preds]
+        colors = [track_color(p.track_id) if p.confirmed else TENTATIVE_COLOR for p in preds]
+        labels = [f"{p.track_id}" + ("" if p.confirmed else "?") + (" meet" if p.meeting else "")
+                  for p in preds]
+        rec.log("camera/predictions", rr.Points2D(
+            [[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)), class_ids=ids,
+            colors=colors, labels=labels, radii=1.5, show_labels=True))
+        rec.log("camera/gates", rr.Boxes2D(
+            centers=[[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)),
+            half_sizes=[[p.half_w, p.half_h] for p in preds] if preds else np.zeros((0, 2)),
+            class_ids=ids, colors=colors, show_labels=False))
+        self._log_trails(result)
+        for stage, ms in result.timings.items():
+            rec.log(f"timing/{stage}", rr.Scalars(ms))
+        for e in result.events:
+            rec.log("log", rr.TextLog(e.message, level=EVENT_LEVELS.get(e.kind, "INFO")))
+
+    def _log_trails(self, result: FrameResult) -> None:
+        live = set()
+        for t in result.tracks:
+            live.add(t.track_id)
+            trail = self._trails.setdefault(t.track_id, deque(maxlen=self._trail_length))
+            trail.append((t.x, t.y))
+        for tid in list(self._trails):
+            if tid not in live:
+                del self._trails[tid]
+        conf = [t for t in result.tracks if t.confirmed]
+        strips = [np.array(self._trails[t.track_id], dtype=np.float32) for t in conf]
+        self.rec.log("camera/tracks", rr.LineStrips2D(
+            strips, class_ids=[t.track_id for t in conf], labels=[str(t.track_id) for t in conf],
+            colors=[track_color(t.track_id) for t in conf], radii=0.6))
+
+    def _ensure_labels(self, confirmed_ids: list[int]) -> None:
+        """Static annotation context: a stable colour and label per confirmed track id."""
+        new = set(confirmed_ids) - self._labelled
+        if not new:
+            return
+        self._labelled |= new
+        self.rec.log("/", rr.AnnotationContext([
+            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=f"track {i}", color=track_color(i)))
+            for i in sorted(self._labelled)]), static=True)
+
+    def log_message(self, text: str, level: str = "INFO") -> None:
+        """A free text line in ``log`` at the current time."""
+        self.rec.log("log", rr.TextLog(text, level=level))
+
+    def close(self) -> None:
+        """Flush and close the file (writes the footer)."""
+        self.rec.flush()
+        self.rec.disconnect()
