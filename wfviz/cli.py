@@ -158,6 +158,7 @@ def demo(
     save_clip: Annotated[Optional[Path], typer.Option("--save-clip", help="Also write the clip as 16-bit PNGs + truth.csv here.")] = None,
     config: ConfigOpt = None,
     image_every: ImageEveryOpt = 1,
+    no_images: NoImagesOpt = False,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.evaluate import read_points, score_targets
@@ -171,7 +172,8 @@ def demo(
     tracks = output.with_suffix(".csv")
     truth = output.with_name(output.stem + "-truth.csv")
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
-                       image_every=image_every, source=f"built-in demo (seed {seed}, {frames} frames)")
+                       image_every=0 if no_images else image_every,
+                       source=f"built-in demo (seed {seed}, {frames} frames)")
     clip.write_truth_csv(truth)
     _report(summary, tracks, output)
     out.print(f"  truth:     {truth}", highlight=False)
@@ -180,6 +182,27 @@ def demo(
         out.print(f"  target {s.target_id}: tracked {s.matched}/{s.frames} frames by track "
                   f"{s.main_track}, RMS error {s.rms_error:.2f} px, max {s.max_error:.2f} px, "
                   f"{s.id_switches} identity switches", highlight=False)
+
+
+@app.command()
+@_guarded
+def screenshot(
+    recording: Annotated[Path, typer.Argument(help="Recording (.rrd) to render.")],
+    output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
+    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (default: last).")] = None,
+    width: Annotated[int, typer.Option("--width", min=200)] = 1600,
+    height: Annotated[int, typer.Option("--height", min=200)] = 1000,
+) -> None:
+    """Render a recording in the real Rerun viewer, headless, with its default blueprint."""
+    from wfviz.record.screenshot import ScreenshotError, render_screenshot
+
+    if not recording.is_file():
+        raise ValueError(f"{recording}: no such recording")
+    try:
+        render_screenshot(recording, output, frame=frame, width=width, height=height)
+    except ScreenshotError as exc:
+        raise ValueError(f"{recording}: {exc}") from None
+    out.print(f"screenshot: {output}", highlight=False)
 
 
 @app.command("config")

@@ -14,10 +14,10 @@ from wfviz.frames import Frame
 from wfviz.trackers.base import FrameResult
 
 APPLICATION_ID = "wfviz"
-TENTATIVE_COLOR = (150, 150, 150, 160)
+TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
 EVENT_LEVELS = {"born": "DEBUG", "confirmed": "INFO", "deleted": "WARN",
-                "meeting_on": "INFO", "meeting_off": "INFO"}
+                "meeting_on": "INFO", "meeting_off": "INFO"}  # deleting a tentative track: DEBUG
 
 
 def track_color(track_id: int) -> tuple[int, int, int]:
@@ -42,14 +42,18 @@ class Recorder:
         self._trails: dict[int, deque] = {}
         self._trail_length = trail_length
         self._labelled: set[int] = set()
+        self.confirmed_ids: set[int] = set()
         self.frames_logged = 0
         self.rec.log("config", rr.TextDocument(
             f"# wfviz {tracker}\n\nSource: `{source}`\n\n```toml\n{config_text}\n```",
             media_type=rr.MediaType.MARKDOWN), static=True)
 
     # -- layout ---------------------------------------------------------------------------
-    def blueprint(self) -> rrb.Blueprint:
-        """Default layout: raw image with overlays, residual, time series, bars, log."""
+    def blueprint(self, track_ids: list[int] | None = None) -> rrb.Blueprint:
+        """Default layout: raw image with overlays, residual, time series, bars, log.
+
+        ``track_ids`` (known when the recording closes) splits per-track plots by track.
+        """
         return rrb.Blueprint(
             rrb.Horizontal(
                 rrb.Vertical(
@@ -59,21 +63,22 @@ class Recorder:
                                                 "/camera/gates", "/camera/predictions"]),
                 ),
                 rrb.Vertical(
-                    rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
-                    rrb.TimeSeriesView(origin="kalman", name="Kalman innovation / cov trace"),
-                    self.extra_views(),
+                    rrb.Tabs(rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
+                             rrb.TimeSeriesView(origin="detection", name="Detections")),
+                    self.track_views(track_ids),
                     rrb.Tabs(rrb.TextLogView(origin="log", name="Track log"),
                              rrb.TextDocumentView(origin="config", name="Config")),
                 ),
                 column_shares=[3, 2],
             ),
-            rrb.TimePanel(timeline="frame"),
-            collapse_panels=False,
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(timeline="frame", state="collapsed"),
         )
 
-    def extra_views(self) -> rrb.View | rrb.Container:
-        """Tracker-specific view(s) in the right column."""
-        return rrb.TimeSeriesView(origin="detection", name="Detections")
+    def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
+        """Per-track views (right column, middle); overridden by tracker adapters."""
+        return rrb.TimeSeriesView(origin="kalman", name="Kalman")
 
     # -- per frame ------------------------------------------------------------------------
     def log(self, frame: Frame, result: FrameResult) -> None:
@@ -100,23 +105,30 @@ class Recorder:
         rec.log("detection/count", rr.Scalars(float(len(d))))
         rec.log("detection/threshold", rr.Scalars(float(d.threshold) if np.isfinite(d.threshold) else np.nan))
         self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])
+        self.confirmed_ids.update(t.track_id for t in result.tracks if t.confirmed)
         preds = result.predictions
         ids = [p.track_id for p in preds]
         colors = [track_color(p.track_id) if p.confirmed else TENTATIVE_COLOR for p in preds]
-        labels = [f"{p.track_id}" + ("" if p.confirmed else "?") + (" meet" if p.meeting else "")
+        labels = [(f"{p.track_id}" + (" meet" if p.meeting else "")) if p.confirmed else ""
                   for p in preds]
         rec.log("camera/predictions", rr.Points2D(
             [[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)), class_ids=ids,
-            colors=colors, labels=labels, radii=1.5, show_labels=True))
+            colors=colors, labels=labels, radii=[1.5 if p.confirmed else 0.7 for p in preds],
+            show_labels=True))
         rec.log("camera/gates", rr.Boxes2D(
             centers=[[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)),
             half_sizes=[[p.half_w, p.half_h] for p in preds] if preds else np.zeros((0, 2)),
-            class_ids=ids, colors=colors, show_labels=False))
+            class_ids=ids, colors=colors, radii=[0.5 if p.confirmed else 0.2 for p in preds],
+            show_labels=False))
         self._log_trails(result)
         for stage, ms in result.timings.items():
             rec.log(f"timing/{stage}", rr.Scalars(ms))
+        confirmed = {t.track_id for t in result.tracks if t.confirmed} | self._labelled
         for e in result.events:
-            rec.log("log", rr.TextLog(e.message, level=EVENT_LEVELS.get(e.kind, "INFO")))
+            level = EVENT_LEVELS.get(e.kind, "INFO")
+            if e.kind == "deleted" and e.track_id not in confirmed:
+                level = "DEBUG"
+            rec.log("log", rr.TextLog(e.message, level=level))
 
     def _log_trails(self, result: FrameResult) -> None:
         live = set()
@@ -131,7 +143,7 @@ class Recorder:
         strips = [np.array(self._trails[t.track_id], dtype=np.float32) for t in conf]
         self.rec.log("camera/tracks", rr.LineStrips2D(
             strips, class_ids=[t.track_id for t in conf], labels=[str(t.track_id) for t in conf],
-            colors=[track_color(t.track_id) for t in conf], radii=0.6))
+            colors=[track_color(t.track_id) for t in conf], radii=0.6, show_labels=False))
 
     def _ensure_labels(self, confirmed_ids: list[int]) -> None:
         """Static annotation context: a stable colour and label per confirmed track id."""
@@ -148,6 +160,9 @@ class Recorder:
         self.rec.log("log", rr.TextLog(text, level=level))
 
     def close(self) -> None:
-        """Flush and close the file (writes the footer)."""
+        """Send the final default blueprint (per-track views), flush and close the file."""
+        ids = sorted(self.confirmed_ids)
+        if ids:
+            self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)
         self.rec.flush()
         self.rec.disconnect()
