@@ -163,3 +163,22 @@ def test_measure_ignores_other_components_in_the_window():
     a = measure(res, labels, 1, (12, 14), 11, 0.0, "intensity")
     b = measure(alone, labels, 1, (12, 14), 11, 0.0, "intensity")
     assert abs(a.x - b.x) < 1e-9 and abs(a.y - b.y) < 1e-9
+
+
+def test_pipeline_circle_and_horizon_on_the_demo_scene():
+    """The tracker's own estimates against the demo's exact fisheye geometry."""
+    from wfviz.synth.demo import demo_clip, horizon_row
+    from wfviz.trackers import make_tracker
+
+    clip = demo_clip(seed=3)
+    trk = make_tracker("gewc")
+    result = None
+    for frame in clip.frames(0, 11):
+        result = trk.step(frame)
+    cx, cy, r = clip.circle
+    c = trk.circle
+    assert abs(c.cx - cx) < 1 and abs(c.cy - cy) < 1 and abs(c.radius - r) < 1
+    truth = horizon_row(np.arange(clip.shape[1]))
+    ok = np.isfinite(truth) & np.isfinite(result.horizon.rows)
+    assert ok.sum() > 0.9 * np.isfinite(truth).sum()
+    assert np.median(np.abs(result.horizon.rows[ok] - truth[ok])) < 2.0

@@ -19,8 +19,8 @@ from wfviz.trackers import TRACKERS, make_tracker
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Wide-field IR small-target tracking with every stage recorded to Rerun.")
-err = Console(stderr=True)
-out = Console()
+err = Console(stderr=True, soft_wrap=True)
+out = Console(soft_wrap=True)
 EXIT_BAD_INPUT = 2
 STATE = {"debug": False}
 

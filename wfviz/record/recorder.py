@@ -66,7 +66,8 @@ class Recorder:
                     rrb.Tabs(rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
                              rrb.TimeSeriesView(origin="detection", name="Detections")),
                     self.track_views(track_ids),
-                    rrb.Tabs(rrb.TextLogView(origin="log", name="Track log"),
+                    rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
+                                 filter_by_log_level=["INFO", "WARN", "ERROR"])),  # DEBUG: tentative tracks
                              rrb.TextDocumentView(origin="config", name="Config")),
                 ),
                 column_shares=[3, 2],
