@@ -74,6 +74,10 @@ def test_recording_has_every_required_entity_at_expected_frames(demo_run):
     assert sum(len(frames[p]) > 60 for p in gewc) >= 4
     assert sum(len(frames[p]) > 60 for p in innov) >= 4 and sum(len(frames[p]) > 60 for p in cov) >= 4
     assert RrdReader(rrd).blueprints(), "default blueprint is embedded"
+    # the demo scores itself against its truth
+    for path in ["/camera/truth", "/eval/cle", "/eval/missed", "/eval/false_alarms"]:
+        assert frames[path] == every, path
+    assert "/eval/summary" in static
 
 
 def test_log_tells_births_confirmations_and_meetings(demo_run):
@@ -160,3 +164,35 @@ def test_bad_input_is_one_line_error(tmp_path):
     bad.write_text("[kalman]\nqq = 1\n")
     proc = wfviz("track", str(tmp_path), "--tracks", "x.csv", "--config", str(bad), cwd=tmp_path)
     assert proc.returncode == 2 and "did you mean 'q'" in proc.stderr
+
+
+def test_eval_command_table_and_json(demo_run, tmp_path):
+    cwd, _, stdout = demo_run
+    assert "MOTA" in stdout and "IDF1" in stdout  # the demo prints its scores
+    tracks, truth = cwd / "recordings" / "demo-gewc.csv", cwd / "recordings" / "demo-gewc-truth.csv"
+    out = tmp_path / "scores.json"
+    proc = wfviz("eval", str(tracks), str(truth), "--json", str(out), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "MOTA" in proc.stdout and "CLE" in proc.stdout
+    import json
+    data = json.loads(out.read_text())
+    assert data["id_switches"] == 0 and data["mota"] > 0.9 and data["false_positives"] == 0
+    proc = wfviz("eval", str(tracks), str(tmp_path / "nope.csv"), cwd=tmp_path)
+    assert proc.returncode == 2 and "nope.csv" in proc.stderr
+
+
+def test_record_with_truth_logs_eval_entities(tmp_path):
+    from wfviz.synth.demo import demo_clip
+    folder = tmp_path / "scene"
+    demo_clip().save(folder, 0, 15)
+    proc = wfviz("record", str(folder), "-o", str(tmp_path / "r.rrd"), "--no-images",
+                 "--truth", str(folder / "truth.csv"), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    frames, static = rrd_index(tmp_path / "r.rrd")
+    assert frames["/camera/truth"] == set(range(15)) and frames["/eval/missed"] == set(range(15))
+    assert "/eval/summary" in static and "MOTA" in proc.stdout
+    bad = tmp_path / "bad.csv"
+    bad.write_text("frame,target_id,x,y\n0,1,abc,3\n")
+    proc = wfviz("record", str(folder), "-o", str(tmp_path / "s.rrd"), "--truth", str(bad), cwd=tmp_path)
+    assert proc.returncode == 2 and "bad.csv:2" in proc.stderr and "'x'" in proc.stderr
+    assert not (tmp_path / "s.rrd").exists() and not (tmp_path / "s.rrd.part").exists()

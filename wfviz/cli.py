@@ -13,7 +13,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from wfviz.clip import ClipError, open_clip
 from wfviz.config import ConfigError, GEWCConfig, config_to_toml, load_config
 from wfviz.frames import Clip
-from wfviz.outputs import OutputError
+from wfviz.outputs import OutputError, check_writable
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, make_tracker
 
@@ -31,6 +31,8 @@ StopOpt = Annotated[Optional[int], typer.Option("--stop", min=1, help="Stop befo
 FpsOpt = Annotated[Optional[float], typer.Option("--fps", min=0.001, help="Override the clip's frame rate.")]
 ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log images every N frames.")]
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
+TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
+GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
@@ -60,7 +62,7 @@ def _tracker(name: str, config: Path | None):  # noqa: ANN202
 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
-             stop: int | None, image_every: int, source: str) -> RunSummary:
+             stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0) -> RunSummary:
     total = clip.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
@@ -81,10 +83,20 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
             progress.update(task, advance=1, fps=count[0] / max(time.perf_counter() - t0, 1e-9))
 
         summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
-                      start=start, stop=stop, on_frame=tick)
+                      start=start, stop=stop, truth=truth, gate=gate, on_frame=tick)
     if summary.frames == 0:
         raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
     return summary
+
+
+def _read_truth(path: Path | None):  # noqa: ANN202
+    if path is None:
+        return None
+    from wfviz.evaluate import read_truth
+
+    if not path.is_file():
+        raise ValueError(f"{path}: no such truth file")
+    return read_truth(path)
 
 
 def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) -> None:
@@ -97,6 +109,9 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) ->
     if recording is not None:
         out.print(f"  recording: {recording}", highlight=False)
         out.print(f"  open it:   rerun {recording}", highlight=False)
+    if summary.scores is not None:
+        from wfviz.evaluate import format_table
+        out.print(format_table(summary.scores), highlight=False, markup=False)
     if summary.interrupted:
         raise typer.Exit(130)
 
@@ -119,14 +134,18 @@ def record(
     fps: FpsOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
+    truth: TruthOpt = None,
+    gate: GateOpt = 3.0,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
     trk = _tracker(tracker, config)
+    truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps)
     output = output or Path("recordings") / f"{source.name}-{tracker}.rrd"
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
-                       image_every=0 if no_images else image_every, source=str(clip))
+                       image_every=0 if no_images else image_every, source=str(clip),
+                       truth=truth_points, gate=gate)
     _report(summary, tracks, output)
 
 
@@ -140,12 +159,15 @@ def track(
     start: StartOpt = 0,
     stop: StopOpt = None,
     fps: FpsOpt = None,
+    truth: TruthOpt = None,
+    gate: GateOpt = 3.0,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
     trk = _tracker(tracker, config)
+    truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
-                       image_every=0, source=str(clip))
+                       image_every=0, source=str(clip), truth=truth_points, gate=gate)
     _report(summary, tracks, None)
 
 
@@ -161,7 +183,7 @@ def demo(
     no_images: NoImagesOpt = False,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
-    from wfviz.evaluate import read_points, score_targets
+    from wfviz.evaluate import read_truth
     from wfviz.synth.demo import demo_clip
 
     trk = _tracker("gewc", config)
@@ -171,17 +193,69 @@ def demo(
         out.print(f"  clip:      {save_clip}", highlight=False)
     tracks = output.with_suffix(".csv")
     truth = output.with_name(output.stem + "-truth.csv")
+    check_writable(truth)
+    clip.write_truth_csv(truth)
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
-                       source=f"built-in demo (seed {seed}, {frames} frames)")
-    clip.write_truth_csv(truth)
-    _report(summary, tracks, output)
+                       source=f"built-in demo (seed {seed}, {frames} frames)", truth=read_truth(truth))
     out.print(f"  truth:     {truth}", highlight=False)
-    for s in score_targets(read_points(tracks, "track_id", confirmed_only=True),
-                           read_points(truth, "target_id")):
-        out.print(f"  target {s.target_id}: tracked {s.matched}/{s.frames} frames by track "
-                  f"{s.main_track}, RMS error {s.rms_error:.2f} px, max {s.max_error:.2f} px, "
-                  f"{s.id_switches} identity switches", highlight=False)
+    _report(summary, tracks, output)
+
+
+@app.command()
+@_guarded
+def synth(
+    scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
+    out_dir: Annotated[Optional[Path], typer.Argument(help="Folder to write (16-bit PNGs, truth.csv, meta.json).")] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Random seed (noise, textures).")] = 0,
+    frames: Annotated[Optional[int], typer.Option("--frames", min=1, help="Number of frames (default: the scenario's).")] = None,
+    snr: Annotated[Optional[float], typer.Option("--snr", min=0.1, help="Peak SNR of every target.")] = None,
+    avi: Annotated[bool, typer.Option("--avi", help="Also write an 8-bit .avi.")] = False,
+    list_: Annotated[bool, typer.Option("--list", help="Describe every scenario and exit.")] = False,
+) -> None:
+    """Write a synthetic wide-field scenario with exact truth."""
+    from wfviz.synth.scenarios import list_scenarios, make_scenario, write_scenario
+
+    if list_ or scenario is None:
+        for info in list_scenarios():
+            out.print(f"[bold]{info.name}[/]  {info.width}x{info.height}, {info.fov_deg:g}° FOV, "
+                      f"{info.n_frames} frames at {info.fps:g} fps, {info.n_targets} targets\n    {info.description}")
+        return
+    if out_dir is None:
+        raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
+    clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  console=err, transient=True, disable=not err.is_terminal) as progress:
+        progress.add_task(f"synth {scenario}", total=clip.n_frames)
+        path = write_scenario(clip, out_dir, avi=avi)
+    out.print(f"wrote {clip.n_frames} frames of '{scenario}' (seed {seed}) to {path}", highlight=False)
+    out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False)
+
+
+@app.command("eval")
+@_guarded
+def eval_(
+    tracks: Annotated[Path, typer.Argument(help="Tracks CSV (frame,track_id,x,y,confirmed).")],
+    truth: Annotated[Path, typer.Argument(help="Truth CSV (frame,target_id,x,y).")],
+    gate: Annotated[float, typer.Option("--gate", min=0.01, help="Match distance in pixels.")] = 3.0,
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores as JSON.")] = None,
+) -> None:
+    """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f."""
+    import json
+
+    from wfviz.evaluate import evaluate, format_table
+
+    for p in (tracks, truth):
+        if not p.is_file():
+            raise ValueError(f"{p}: no such file")
+    result = evaluate(tracks, truth, gate=gate)
+    out.print(format_table(result), highlight=False, markup=False)
+    if json_out is not None:
+        from wfviz.outputs import check_writable, commit, part_path
+        check_writable(json_out)
+        part_path(json_out).write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
+        commit(json_out)
+        out.print(f"  json: {json_out}", highlight=False)
 
 
 @app.command()

@@ -1,14 +1,31 @@
-"""Tracks against ground truth: per-frame optimal matching, per-target error and identity."""
+"""Tracks against ground truth: MOT metrics (py-motmetrics), centre error, Pd, false alarms, latency.
+
+Hidden truth (rows with ``visible == 0``) is neither missed nor matchable. Like MOTChallenge's
+"don't care" objects, a track point left unmatched by the visible targets that lies within the
+gate of a hidden target (one track per hidden target, optimal assignment) is ignored: it is
+neither a match nor a false alarm. Only frames in the truth's frame range are evaluated.
+"""
 
 from __future__ import annotations
 
 import csv
+import math
 from collections import Counter, defaultdict
-from dataclasses import dataclass
+from dataclasses import asdict, dataclass
 from pathlib import Path
+from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+Point = tuple[int, float, float]
+Points = dict[int, list[Point]]
+_NAN = float("nan")
+_TRUE, _FALSE = {"1", "1.0", "true", "True"}, {"0", "0.0", "false", "False"}
+
+
+class TruthError(ValueError):
+    """Malformed tracks or truth CSV; the message names file, line and column."""
 
 
 @dataclass(frozen=True)
@@ -28,47 +45,260 @@ class TargetScore:
 
     @property
     def max_error(self) -> float:
-        return max(self.errors) if self.errors else float("nan")
+        return max(self.errors) if self.errors else _NAN
 
     @property
     def rms_error(self) -> float:
-        return float(np.sqrt(np.mean(np.square(self.errors)))) if self.errors else float("nan")
+        return float(np.sqrt(np.mean(np.square(self.errors)))) if self.errors else _NAN
 
 
-def read_points(path: Path, id_column: str, confirmed_only: bool = False) -> dict[int, list[tuple[int, float, float]]]:
+@dataclass(frozen=True)
+class TargetEval:
+    """One target: visible frames T_i, matched frames k_i, p_d = k_i / T_i, latency in frames."""
+
+    target_id: int
+    frames: int
+    matched: int
+    p_d: float
+    latency: float  # first matched frame - first visible frame; NaN if never matched
+    main_track: int | None
+    id_switches: int
+    cle_rms: float
+
+
+@dataclass(frozen=True)
+class EvalResult:
+    """Whole-sequence metrics; distances in pixels, ``matches`` counts every matched truth point."""
+
+    gate: float
+    frames: int
+    truth_points: int
+    matches: int
+    misses: int
+    false_positives: int
+    ignored: int  # track points on hidden targets (not false alarms)
+    id_switches: int
+    fragmentations: int
+    mota: float
+    motp: float
+    idf1: float
+    cle_mean: float
+    cle_rms: float
+    pd: float
+    fa_per_frame: float
+    latency_mean: float
+    p_f: float
+    per_target: tuple[TargetEval, ...]
+
+    def to_dict(self) -> dict:
+        """JSON-ready dict: floats, ints, lists; NaN becomes None."""
+        def clean(v: Any) -> Any:
+            if isinstance(v, dict):
+                return {k: clean(x) for k, x in v.items()}
+            if isinstance(v, (list, tuple)):
+                return [clean(x) for x in v]
+            if isinstance(v, float) and math.isnan(v):
+                return None
+            return v
+        return clean(asdict(self))
+
+
+@dataclass(frozen=True)
+class FrameErrors:
+    """One frame: mean centre error of matches, missed targets, false alarms, (track, target, px)."""
+
+    cle_mean: float
+    missed: int
+    false_alarms: int
+    matches: tuple[tuple[int, int, float], ...]
+
+
+def _parse(text: str | None, where: str, col: str, kind: str) -> Any:
+    """``text`` as int, float or 0/1 flag, else TruthError naming ``where`` and ``col``."""
+    s = (text or "").strip()
+    if kind == "flag" and s in _TRUE | _FALSE:
+        return s in _TRUE
+    try:
+        v = float(s)
+        if kind != "flag" and math.isfinite(v) and (kind == "float" or v.is_integer()):
+            return int(v) if kind == "int" else v
+    except ValueError:
+        pass
+    what = {"int": "an integer", "float": "a number", "flag": "0 or 1"}[kind]
+    raise TruthError(f"{where}: column {col!r}: {s!r} is not {what}" if s else f"{where}: column {col!r}: empty")
+
+
+def _read(path: Path | str, id_column: str, flag: str | None) -> tuple[Points, Points]:
+    """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0."""
+    name, shown, hidden, seen = Path(path).name, defaultdict(list), defaultdict(list), set()
+    try:
+        with open(path, newline="", encoding="utf-8") as fh:
+            reader = csv.DictReader(fh)
+            header = reader.fieldnames or []
+            missing = [c for c in ("frame", id_column, "x", "y") if c not in header]
+            if header and missing:
+                raise TruthError(f"{name}:1: missing column {missing[0]!r} (header: {','.join(header)})")
+            use_flag = flag is not None and flag in header
+            for row in reader:
+                where = f"{name}:{reader.line_num}"
+                f, i, x, y = (_parse(row.get(c), where, c, k) for c, k in
+                              (("frame", "int"), (id_column, "int"), ("x", "float"), ("y", "float")))
+                if (f, i) in seen:
+                    raise TruthError(f"{where}: column {id_column!r}: {i} repeated in frame {f}")
+                seen.add((f, i))
+                ok = _parse(row.get(flag), where, flag, "flag") if use_flag else True
+                (shown if ok else hidden)[f].append((i, x, y))
+    except UnicodeDecodeError as e:
+        raise TruthError(f"{name}: not UTF-8 text ({e.reason})") from None
+    return dict(shown), dict(hidden)
+
+
+def read_points(path: Path, id_column: str, confirmed_only: bool = False) -> Points:
     """{frame: [(id, x, y), ...]} from a tracks or truth CSV (``confirmed == 1`` rows if asked)."""
-    out: dict[int, list[tuple[int, float, float]]] = defaultdict(list)
-    with open(path, newline="", encoding="utf-8") as fh:
-        for row in csv.DictReader(fh):
-            if confirmed_only and row.get("confirmed", "1") not in ("1", "1.0", "True", "true"):
-                continue
-            out[int(row["frame"])].append((int(row[id_column]), float(row["x"]), float(row["y"])))
-    return out
+    return _read(path, id_column, "confirmed" if confirmed_only else None)[0]
 
 
-def score_targets(tracks: dict[int, list[tuple[int, float, float]]],
-                  truth: dict[int, list[tuple[int, float, float]]], gate: float = 3.0) -> list[TargetScore]:
+def _dist(a: Sequence[Point], b: Sequence[Point]) -> np.ndarray:
+    """Euclidean distance matrix (len(a), len(b)) between (id, x, y) points."""
+    pa = np.array([p[1:] for p in a], float).reshape(-1, 2)
+    pb = np.array([p[1:] for p in b], float).reshape(-1, 2)
+    return np.hypot(*np.moveaxis(pa[:, None, :] - pb[None, :, :], 2, 0))
+
+
+def _assign(a: Sequence[Point], b: Sequence[Point], gate: float) -> list[tuple[int, int, float]]:
+    """Optimal (most pairs, then least total distance) a-b pairing within ``gate``: (i, j, d)."""
+    if not a or not b:
+        return []
+    d = _dist(a, b)
+    rows, cols = linear_sum_assignment(np.where(d <= gate, d, 1e9))
+    return [(int(r), int(c), float(d[r, c])) for r, c in zip(rows, cols) if d[r, c] <= gate]
+
+
+def _drop_hidden(tracks: Sequence[Point], truth: Sequence[Point], hidden: Sequence[Point],
+                 gate: float) -> list[Point]:
+    """``tracks`` minus those on hidden targets (not used by the visible truth's assignment)."""
+    if not hidden or not tracks:
+        return list(tracks)
+    used = {j for _, j, _ in _assign(truth, tracks, gate)}
+    free = [j for j in range(len(tracks)) if j not in used]
+    on_hidden = {free[j] for _, j, _ in _assign(hidden, [tracks[j] for j in free], gate)}
+    return [t for j, t in enumerate(tracks) if j not in on_hidden]
+
+
+def frame_errors(track_pts: Sequence[Point], truth_pts: Sequence[Point], gate: float = 3.0,
+                 hidden: Sequence[Point] = ()) -> FrameErrors:
+    """Errors of one frame: optimal assignment of (id, x, y) tracks to truth within ``gate`` px."""
+    tracks = _drop_hidden(track_pts, truth_pts, hidden, gate)
+    pairs = _assign(truth_pts, tracks, gate)
+    matches = tuple((tracks[j][0], truth_pts[i][0], d) for i, j, d in pairs)
+    cle = float(np.mean([d for *_, d in matches])) if matches else _NAN
+    return FrameErrors(cle, len(truth_pts) - len(pairs), len(tracks) - len(pairs), matches)
+
+
+def score_targets(tracks: Points, truth: Points, gate: float = 3.0) -> list[TargetScore]:
     """Match tracks to truth frame by frame (Hungarian on distance, ``gate`` px at most)."""
     frames: Counter = Counter()
     errors: dict[int, list[float]] = defaultdict(list)
     ids: dict[int, list[int]] = defaultdict(list)
     for f, gt in truth.items():
-        for tid, _, _ in gt:
-            frames[tid] += 1
+        frames.update(tid for tid, _, _ in gt)
         tr = tracks.get(f, [])
-        if not tr:
-            continue
-        g = np.array([[x, y] for _, x, y in gt])
-        t = np.array([[x, y] for _, x, y in tr])
-        d = np.hypot(*(g[:, None, :] - t[None, :, :]).transpose(2, 0, 1))
-        rows, cols = linear_sum_assignment(np.where(d <= gate, d, 1e9))
-        for r, c in zip(rows, cols):
-            if d[r, c] <= gate:
-                errors[gt[r][0]].append(float(d[r, c]))
-                ids[gt[r][0]].append(tr[c][0])
+        for i, j, d in _assign(gt, tr, gate):
+            errors[gt[i][0]].append(d)
+            ids[gt[i][0]].append(tr[j][0])
     out = []
     for tid in sorted(frames):
         seq = ids[tid]
         switches = sum(1 for a, b in zip(seq, seq[1:]) if a != b)
         out.append(TargetScore(tid, frames[tid], len(errors[tid]), tuple(errors[tid]), tuple(seq), switches))
     return out
+
+
+def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> EvalResult:
+    """Feed every frame of the truth's range to a motmetrics accumulator and summarise."""
+    import motmetrics as mm  # pandas-heavy: import only when evaluating
+
+    acc = mm.MOTAccumulator(auto_id=False)
+    span = [f for f, v in (*truth.items(), *hidden.items()) if v]
+    frames = range(min(span), max(span) + 1) if span else range(0)
+    ignored = 0
+    for f in frames:
+        gt, tr = truth.get(f, []), tracks.get(f, [])
+        kept = _drop_hidden(tr, gt, hidden.get(f, []), gate)
+        ignored += len(tr) - len(kept)
+        # Own Euclidean matrix (not norm2squared_matrix, which returns squared distances): NaN = no pair.
+        d = _dist(gt, kept)
+        acc.update([p[0] for p in gt], [p[0] for p in kept], np.where(d <= gate, d, np.nan), frameid=f)
+    s = mm.metrics.create().compute(acc, name="all", metrics=[
+        "num_detections", "num_misses", "num_false_positives", "num_switches",
+        "num_fragmentations", "mota", "motp", "idf1", "num_objects"]).iloc[0]
+    ev = acc.mot_events
+    hit = ev[ev.Type.isin(["MATCH", "SWITCH"])]  # SWITCH rows are matches too
+    hit_frames = hit.index.get_level_values("FrameId")
+    visible: dict[int, list[int]] = defaultdict(list)
+    for f in sorted(truth):
+        for tid, _, _ in truth[f]:
+            visible[tid].append(f)
+    per = []
+    for tid in sorted(visible):
+        mine = (hit.OId == tid).to_numpy()
+        d, fr = hit.D.to_numpy(float)[mine], hit_frames[mine]
+        k, t = int(mine.sum()), len(visible[tid])
+        main = Counter(int(h) for h in hit.HId[mine]).most_common(1)
+        per.append(TargetEval(tid, t, k, k / t, float(min(fr) - visible[tid][0]) if k else _NAN,
+                              main[0][0] if main else None,
+                              int(((ev.Type == "SWITCH") & (ev.OId == tid)).sum()),
+                              float(np.sqrt(np.mean(d ** 2))) if k else _NAN))
+    dist = hit.D.to_numpy(float)
+    n_truth, fp = int(s.num_objects), int(s.num_false_positives)
+    lat = [p.latency for p in per if not math.isnan(p.latency)]
+    return EvalResult(
+        gate=float(gate), frames=len(frames), truth_points=n_truth, matches=int(s.num_detections),
+        misses=int(s.num_misses), false_positives=fp, ignored=ignored, id_switches=int(s.num_switches),
+        fragmentations=int(s.num_fragmentations), mota=float(s.mota), motp=float(s.motp),
+        idf1=float(s.idf1), cle_mean=float(dist.mean()) if dist.size else _NAN,
+        cle_rms=float(np.sqrt(np.mean(dist ** 2))) if dist.size else _NAN,
+        pd=float(s.num_detections) / n_truth if n_truth else _NAN,
+        fa_per_frame=fp / len(frames) if frames else _NAN,
+        latency_mean=float(np.mean(lat)) if lat else _NAN,
+        p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per))
+
+
+def read_truth(path: Path | str) -> tuple[Points, Points]:
+    """Truth CSV as (visible points, hidden points), each {frame: [(target_id, x, y)]}."""
+    return _read(path, "target_id", "visible")
+
+
+def evaluate_points(tracks: Points, truth: Points, gate: float = 3.0,
+                    hidden: Points | None = None) -> EvalResult:
+    """Score {frame: [(track_id, x, y)]} tracks against {frame: [(target_id, x, y)]} truth."""
+    return _evaluate(tracks, truth, hidden or {}, gate)
+
+
+def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0) -> EvalResult:
+    """Score a tracks CSV (``confirmed == 1`` rows) against a truth CSV (``visible == 1`` rows)."""
+    shown, hidden = read_truth(truth)
+    return _evaluate(_read(tracks, "track_id", "confirmed")[0], shown, hidden, gate)
+
+
+def format_table(result: EvalResult) -> str:
+    """Plain-text report: overall metrics, then one row per target."""
+    def num(v: float | int | None, fmt: str = ".3f") -> str:
+        return "-" if v is None or (isinstance(v, float) and math.isnan(v)) else format(v, fmt)
+
+    r = result
+    lines = [
+        f"frames {r.frames}   truth points {r.truth_points}   gate {r.gate:g} px",
+        f"MOTA {num(r.mota)}   MOTP {num(r.motp)} px   IDF1 {num(r.idf1)}",
+        f"matches {r.matches}   misses {r.misses}   false positives {r.false_positives}"
+        f"   ignored (hidden) {r.ignored}   ID switches {r.id_switches}   fragmentations {r.fragmentations}",
+        f"CLE mean {num(r.cle_mean)} px   RMS {num(r.cle_rms)} px",
+        f"Pd {num(r.pd)}   false alarms/frame {num(r.fa_per_frame)}   p_f {num(r.p_f, '.4f')}"
+        f"   mean latency {num(r.latency_mean, '.1f')} frames",
+        "",
+        f"{'target':>6} {'frames':>6} {'matched':>7} {'p_d':>6} {'latency':>7} {'track':>5} {'id-sw':>5} {'CLE rms':>7}",
+    ]
+    for t in r.per_target:
+        lines.append(f"{t.target_id:>6} {t.frames:>6} {t.matched:>7} {num(t.p_d):>6} {num(t.latency, '.0f'):>7} "
+                     f"{num(t.main_track, 'd'):>5} {t.id_switches:>5} {num(t.cle_rms):>7}")
+    return "\n".join(lines)

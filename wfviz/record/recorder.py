@@ -10,12 +10,15 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from wfviz.evaluate import FrameErrors
 from wfviz.frames import Frame
 from wfviz.trackers.base import FrameResult
 
 APPLICATION_ID = "wfviz"
 TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
+TRUTH_COLOR = (255, 255, 255, 200)
+TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
 EVENT_LEVELS = {"born": "DEBUG", "confirmed": "INFO", "deleted": "WARN",
                 "meeting_on": "INFO", "meeting_off": "INFO"}  # deleting a tentative track: DEBUG
 
@@ -64,11 +67,13 @@ class Recorder:
                 ),
                 rrb.Vertical(
                     rrb.Tabs(rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
-                             rrb.TimeSeriesView(origin="detection", name="Detections")),
+                             rrb.TimeSeriesView(origin="detection", name="Detections"),
+                             rrb.TimeSeriesView(origin="eval", name="Errors vs truth")),
                     self.track_views(track_ids),
                     rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
                                  filter_by_log_level=["INFO", "WARN", "ERROR"])),  # DEBUG: tentative tracks
-                             rrb.TextDocumentView(origin="config", name="Config")),
+                             rrb.TextDocumentView(origin="config", name="Config"),
+                             rrb.TextDocumentView(origin="eval/summary", name="Scores")),
                 ),
                 column_shares=[3, 2],
             ),
@@ -155,6 +160,24 @@ class Recorder:
         self.rec.log("/", rr.AnnotationContext([
             rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=f"track {i}", color=track_color(i)))
             for i in sorted(self._labelled)]), static=True)
+
+    def log_truth(self, shown: list[tuple[int, float, float]], hidden: list[tuple[int, float, float]],
+                  errors: FrameErrors) -> None:
+        """Truth points (hidden ones dimmed) and this frame's errors under ``eval/``."""
+        pts = shown + hidden
+        self.rec.log("camera/truth", rr.Points2D(
+            [[x, y] for _, x, y in pts] if pts else np.zeros((0, 2)),
+            labels=[f"T{i}" for i, _, _ in shown] + [f"T{i} hidden" for i, _, _ in hidden],
+            colors=[TRUTH_COLOR] * len(shown) + [TRUTH_HIDDEN_COLOR] * len(hidden),
+            radii=3.0, show_labels=False))
+        self.rec.log("eval/cle", rr.Scalars(errors.cle_mean))
+        self.rec.log("eval/missed", rr.Scalars(float(errors.missed)))
+        self.rec.log("eval/false_alarms", rr.Scalars(float(errors.false_alarms)))
+
+    def log_scores(self, table: str) -> None:
+        """Final scores against truth as static text."""
+        self.rec.log("eval/summary", rr.TextDocument(f"```\n{table}\n```", media_type=rr.MediaType.MARKDOWN),
+                     static=True)
 
     def log_message(self, text: str, level: str = "INFO") -> None:
         """A free text line in ``log`` at the current time."""
