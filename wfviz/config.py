@@ -63,7 +63,9 @@ class SuppressionConfig:
 class DetectionConfig:
     """Track start points: adaptive threshold (mean + k*std) and connected components."""
 
+    mode: str = field(default="global", metadata={"choices": ("global", "local")})
     k_sigma: float = field(default=4.0, metadata=_range(0.0, None))
+    local_window: int = field(default=31, metadata=_range(5, 255))
     min_area: int = field(default=1, metadata=_range(1, None))
     max_area: int = field(default=400, metadata=_range(1, None))
     max_detections: int = field(default=200, metadata=_range(1, None))
@@ -73,7 +75,8 @@ class DetectionConfig:
 class CentroidConfig:
     """Measurement in each prediction window: GEWC (eqs. 4-7) or intensity centroid."""
 
-    method: str = field(default="gewc", metadata={"choices": ("gewc", "intensity")})
+    method: str = field(default="gewc", metadata={"choices": ("gewc", "intensity", "gewc-weighted",
+                                                               "gaussian")})
     window: int = field(default=9, metadata=_range(3, 63))
     gradient_bins: int = field(default=32, metadata=_range(2, 256))
     iterations: int = field(default=2, metadata=_range(1, 10))

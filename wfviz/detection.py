@@ -17,7 +17,8 @@ class Detections:
     ``xy`` (N, 2) intensity-weighted centroids (x, y) of the residual above threshold;
     ``area`` pixel counts; ``peak`` and ``flux`` residual maximum and sum; ``bbox`` (N, 4)
     x, y, width, height; ``component`` each detection's label in ``labels`` (the label image,
-    0 = background); ``threshold`` the adaptive threshold used.
+    0 = background); ``threshold`` the adaptive threshold used (its median for a local
+    threshold, whose map is ``threshold_map``).
     """
 
     xy: np.ndarray
@@ -28,6 +29,7 @@ class Detections:
     component: np.ndarray
     labels: np.ndarray
     threshold: float
+    threshold_map: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -42,24 +44,43 @@ def adaptive_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float)
     return float(mean[0, 0] + k_sigma * max(std[0, 0], 1e-6))
 
 
+def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, window: int) -> np.ndarray:
+    """Threshold map = local mean + k * local std of the residual over ``window`` x ``window``
+    (inside ``region`` only): a cell-averaging CFAR, so textured clutter raises its own bar."""
+    res = residual.astype(np.float32, copy=False)
+    m = region.astype(np.float32)
+    n = cv2.blur(m, (window, window)) + 1e-6
+    mean = cv2.blur(res * m, (window, window)) / n
+    var = cv2.blur(res * res * m, (window, window)) / n - mean * mean
+    return mean + k_sigma * np.sqrt(np.maximum(var, 1e-12))
+
+
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> Detections:
     """Threshold ``residual`` inside ``region`` and label 8-connected components."""
-    thr = adaptive_threshold(residual, region, cfg.k_sigma)
     res = residual.astype(np.float32, copy=False)
-    binary = ((res > thr) & region).astype(np.uint8)
+    if cfg.mode == "local":
+        thr_map: np.ndarray | None = local_threshold(res, region, cfg.k_sigma, cfg.local_window)
+        thr = float(np.median(thr_map[region])) if region.any() else float("inf")
+        excess = res - thr_map
+    else:
+        thr_map = None
+        thr = adaptive_threshold(residual, region, cfg.k_sigma)
+        excess = res - thr
+    binary = ((excess > 0) & region).astype(np.uint8)
     n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
     idx = np.flatnonzero(binary)
     lab = labels.ravel()[idx]
-    val = res.ravel()[idx] - thr
+    val = excess.ravel()[idx]
     w = residual.shape[1]
     xs, ys = (idx % w).astype(np.float64), (idx // w).astype(np.float64)
     flux = np.bincount(lab, weights=val, minlength=n)[1:]
+    total = np.bincount(lab, weights=res.ravel()[idx], minlength=n)[1:]
     safe = np.where(flux > 0, flux, 1.0)
     cx = np.bincount(lab, weights=val * xs, minlength=n)[1:] / safe
     cy = np.bincount(lab, weights=val * ys, minlength=n)[1:] / safe
     peak = np.zeros(n)
-    np.maximum.at(peak, lab, val)
-    peak = peak[1:] + thr
+    np.maximum.at(peak, lab, res.ravel()[idx])
+    peak = peak[1:]
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = np.nonzero((area >= cfg.min_area) & (area <= cfg.max_area))[0]
     keep = keep[np.argsort(-peak[keep], kind="stable")][: cfg.max_detections]
@@ -67,9 +88,10 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> De
         xy=np.column_stack([cx[keep], cy[keep]]),
         area=area[keep].astype(np.int64),
         peak=peak[keep],
-        flux=flux[keep] + thr * area[keep],
+        flux=total[keep],
         bbox=stats[1:, :4][keep].astype(np.int64),
         component=keep + 1,
         labels=labels,
         threshold=thr,
+        threshold_map=thr_map,
     )

@@ -128,7 +128,8 @@ class GEWCTracker:
             size = int(max(cc.window, max(bw, bh) + 4))
             r: CentroidResult | None = measure(
                 suppressed, dets.labels, int(dets.component[di]), tuple(dets.xy[di]), size,
-                dets.threshold, cc.method, cc.gradient_bins, cc.iterations)
+                dets.threshold if dets.threshold_map is None else dets.threshold_map,
+                cc.method, cc.gradient_bins, cc.iterations)
             if r is None:
                 continue
             out[ti] = Measurement(preds[ti].track_id, r.x, r.y, r.weights, di)
