@@ -17,7 +17,7 @@ from wfviz.config import GEWCConfig, config_from_dict
 from wfviz.evaluate import read_points, score_targets
 
 N_FRAMES = 120  # covers the crossing (frames 73-83) and target 4's birth (frame 30)
-STAGES = ["mask", "horizon", "suppress", "detect", "associate", "centroid", "kalman", "total"]
+STAGES = ["defects", "mask", "horizon", "suppress", "detect", "associate", "centroid", "kalman", "total"]
 
 
 def wfviz(*args: str, cwd: Path) -> subprocess.CompletedProcess:

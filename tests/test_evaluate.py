@@ -67,6 +67,14 @@ def test_exchanged_track_ids_count_one_switch_per_target():
     assert r.matches == 20 and r.pd == 1.0  # switch frames are still matches
 
 
+def test_one_target_changing_track_id_counts_one_switch():
+    truth = {f: [(1, 10.0 + f, 20.0)] for f in range(10)}
+    tracks = {f: [(7 if f < 4 else 9, 10.0 + f, 20.0)] for f in range(10)}
+    r = evaluate_points(tracks, truth)
+    assert r.id_switches == 1 and r.per_target[0].id_switches == 1
+    assert r.mota == pytest.approx(0.9) and r.false_positives == 0
+
+
 def test_track_outside_gate_is_a_miss_and_a_false_alarm():
     truth = {0: [(1, 10.0, 10.0)]}
     r = evaluate_points({0: [(7, 13.0, 14.0)]}, truth, gate=3.0)  # 5 px away

@@ -1,5 +1,8 @@
 """Sub-pixel target position in a window: GEWC (GEWC paper, eqs. 4-7) or intensity centroid.
 
+Also an improved GEWC (``gewc_weighted_centroid``), a pixel-integrated Gaussian fit and the
+Cramér–Rao bound of that spot model (docs/accuracy.md compares them).
+
 Patches are background-free: pixels not belonging to the target are 0. Positions are in
 patch coordinates (x = column, y = row, origin at the centre of the patch's top-left pixel).
 """
@@ -9,6 +12,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.optimize import least_squares
+from scipy.special import erf
 
 N_REGIONS = 8
 
@@ -93,13 +98,17 @@ def gewc_centroid(patch: np.ndarray, bins: int = 32, iterations: int = 2,
 
 
 def measure(residual: np.ndarray, labels: np.ndarray, component: int, centre: tuple[float, float],
-            size: int, threshold: float, method: str = "gewc", bins: int = 32,
+            size: int, threshold: float | np.ndarray, method: str = "gewc", bins: int = 32,
             iterations: int = 2) -> CentroidResult | None:
     """Measure one target in a ``size`` window of ``residual`` centred on ``centre``.
 
     Only the pixels of connected component ``component`` count, with the detection threshold
     subtracted (so the background and any other target in the window are 0). Returns image
     coordinates; weights are all 1/8 for the intensity centroid.
+
+    ``method``: "gewc" (faithful, eqs. 4-7), "intensity", "gewc-weighted"
+    (:func:`gewc_weighted_centroid`) or "gaussian" (:func:`gaussian_fit`); the last two also read
+    the unthresholded window, without the pixels of other components.
     """
     h, w = residual.shape
     half = size // 2
@@ -107,13 +116,251 @@ def measure(residual: np.ndarray, labels: np.ndarray, component: int, centre: tu
     y0 = int(np.clip(round(centre[1]) - half, 0, max(h - 1, 0)))
     x1, y1 = min(x0 + size, w), min(y0 + size, h)
     win = residual[y0:y1, x0:x1].astype(np.float64)
-    patch = np.where(labels[y0:y1, x0:x1] == component, np.maximum(win - threshold, 0.0), 0.0)
+    thr = threshold[y0:y1, x0:x1] if isinstance(threshold, np.ndarray) else threshold
+    patch = np.where(labels[y0:y1, x0:x1] == component, np.maximum(win - thr, 0.0), 0.0)
     if method == "intensity":
         c = intensity_centroid(patch)
         if c is None:
             return None
         return CentroidResult(c[0] + x0, c[1] + y0, np.full(N_REGIONS, 1.0 / N_REGIONS))
+    if method == "gewc-weighted":
+        lab = labels[y0:y1, x0:x1]
+        r = gewc_weighted_centroid(win, patch, (lab == component) | (lab == 0), bins=bins)
+        if r is None:
+            return None
+        return CentroidResult(r.x + x0, r.y + y0, r.weights)
+    if method == "gaussian":   # fit the unthresholded window; other components are left out
+        start = intensity_centroid(patch)
+        if start is None:
+            return None
+        lab = labels[y0:y1, x0:x1]
+        fit = gaussian_fit(win, (lab == component) | (lab == 0), start)
+        if fit is None:
+            return None
+        return CentroidResult(fit.x + x0, fit.y + y0, np.full(N_REGIONS, 1.0 / N_REGIONS))
+    if method != "gewc":
+        raise ValueError(f"unknown centroid method {method!r}")
     r = gewc_centroid(patch, bins=bins, iterations=iterations)
     if r is None:
         return None
     return CentroidResult(r.x + x0, r.y + y0, r.weights)
+
+
+# --- Gaussian fit and Cramér–Rao bound (pixel-integrated Gaussian spot + constant background) ---
+
+_SQRT2 = float(np.sqrt(2.0))
+_SQRT_PI = float(np.sqrt(np.pi))
+_SQRT_2PI = float(np.sqrt(2.0 * np.pi))
+GAUSSIAN_PARAMS = ("peak", "x", "y", "sigma", "background")
+
+
+@dataclass(frozen=True)
+class GaussianFit:
+    """Least-squares pixel-integrated Gaussian: peak (continuous profile), centre, σ, background."""
+
+    peak: float
+    x: float
+    y: float
+    sigma: float
+    background: float
+    rms_residual: float
+
+
+def _pixel_profile(n: int, centre: float, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """Fraction F_i of a unit 1-D Gaussian in pixels 0..n-1 and dF_i/dcentre, dF_i/dsigma."""
+    u = (np.arange(n + 1, dtype=np.float64) - 0.5 - centre) / (_SQRT2 * sigma)
+    e = np.exp(-u * u)
+    f = 0.5 * np.diff(erf(u))
+    d_centre = -np.diff(e) / (_SQRT_2PI * sigma)
+    d_sigma = -np.diff(u * e) / (_SQRT_PI * sigma)
+    return f, d_centre, d_sigma
+
+
+def gaussian_model(shape: tuple[int, int], params: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Pixel-integrated Gaussian μ = peak·2πσ²·F_y⊗F_x + background and its Jacobian.
+
+    ``params`` = (peak, x, y, σ, background), as :data:`GAUSSIAN_PARAMS`; the same pixel model as
+    :func:`wfviz.synth.psf.add_gaussian_spot`. Returns μ (h, w) and ∂μ/∂params (h·w, 5).
+    """
+    peak, x, y, s, b = (float(v) for v in params)
+    h, w = shape
+    fx, dfx, dfx_s = _pixel_profile(w, x, s)
+    fy, dfy, dfy_s = _pixel_profile(h, y, s)
+    k = 2.0 * np.pi * s * s
+    g = np.outer(fy, fx)
+    mu = peak * k * g + b
+    jac = np.empty((h * w, 5))
+    jac[:, 0] = (k * g).ravel()
+    jac[:, 1] = (peak * k * np.outer(fy, dfx)).ravel()
+    jac[:, 2] = (peak * k * np.outer(dfy, fx)).ravel()
+    jac[:, 3] = (peak * (2.0 / s) * k * g + peak * k * (np.outer(dfy_s, fx) + np.outer(fy, dfx_s))).ravel()
+    jac[:, 4] = 1.0
+    return mu, jac
+
+
+def gaussian_fit(window: np.ndarray, mask: np.ndarray | None = None,
+                 start: tuple[float, float] | None = None) -> GaussianFit | None:
+    """Least-squares fit of :func:`gaussian_model` (5 parameters) to the pixels of ``mask``.
+
+    Starts at ``start`` (default: the window's brightest pixel), background = median of the
+    masked pixels, peak = brightest value above it, σ from the flux (flux = peak·2πσ²). Solved by
+    ``scipy.optimize.least_squares`` (trust-region, analytic Jacobian), the centre bounded to the
+    window and σ to [0.2, window/2], at most 100 evaluations (a one-pixel spot leaves the
+    position inside its pixel nearly unobservable; the last iterate is then returned). None
+    for fewer than 6 pixels, flat data or a failed solve.
+    """
+    data = window.astype(np.float64, copy=False)
+    h, w = data.shape
+    sel = np.ones(data.shape, bool) if mask is None else mask.astype(bool)
+    if sel.sum() < 6:
+        return None
+    vals = data[sel]
+    b0 = float(np.median(vals))
+    a0 = float(vals.max() - b0)
+    if a0 <= 0:
+        return None
+    if start is None:
+        iy, ix = np.unravel_index(np.argmax(np.where(sel, data, -np.inf)), data.shape)
+        start = (float(ix), float(iy))
+    flux = float(np.clip(vals - b0, 0, None).sum())
+    s_max = max(h, w) / 2.0
+    s0 = float(np.clip(np.sqrt(flux / (2 * np.pi * a0)), 0.4, s_max * 0.9))
+    lo = np.array([0.0, -0.5, -0.5, 0.2, -np.inf])
+    hi = np.array([np.inf, w - 0.5, h - 0.5, s_max, np.inf])
+    x0 = np.clip(np.array([a0, start[0], start[1], s0, b0]), lo + 1e-6, hi - 1e-6)
+    idx = np.flatnonzero(sel.ravel())
+
+    def fun(p: np.ndarray) -> np.ndarray:
+        return gaussian_model((h, w), p)[0].ravel()[idx] - data.ravel()[idx]
+
+    def jac(p: np.ndarray) -> np.ndarray:
+        return gaussian_model((h, w), p)[1][idx]
+
+    try:
+        res = least_squares(fun, x0, jac=jac, bounds=(lo, hi), method="trf", x_scale="jac",
+                            xtol=1e-8, ftol=1e-8, max_nfev=100)
+    except (ValueError, np.linalg.LinAlgError):
+        return None
+    if res.status < 0 or not np.all(np.isfinite(res.x)):   # budget exhausted: keep last iterate
+        return None
+    p = res.x
+    return GaussianFit(float(p[0]), float(p[1]), float(p[2]), float(p[3]), float(p[4]),
+                       float(np.sqrt(np.mean(res.fun ** 2))))
+
+
+def position_crb(peak: float, sigma: float, noise: float, dx: float = 0.0, dy: float = 0.0,
+                 nuisance: tuple[str, ...] = ("peak", "sigma", "background"),
+                 half: int | None = None) -> tuple[float, float]:
+    """Cramér–Rao bound (std of x, std of y) for the centre of a pixel-integrated Gaussian spot.
+
+    Spot of continuous peak ``peak`` and width ``sigma`` at sub-pixel offset (dx, dy) from a
+    pixel centre, white Gaussian noise of std ``noise``: Fisher information I = JᵀJ / noise² of
+    :func:`gaussian_model` over a (2·half+1)² grid (default half = ⌈6σ⌉ + 2, i.e. all the
+    information), estimated jointly with the ``nuisance`` parameters (any of "peak", "sigma",
+    "background"); the bound is √diag(I⁻¹) for x and y. Well-sampled limit (σ ≫ 1 px, unit pixel
+    area): √(2/π)·noise/peak ≈ 0.798·noise/peak per axis, for any σ.
+    """
+    half = int(np.ceil(6 * sigma)) + 2 if half is None else half
+    n = 2 * half + 1
+    _, jac = gaussian_model((n, n), np.array([peak, half + dx, half + dy, sigma, 0.0]))
+    cols = [1, 2] + [GAUSSIAN_PARAMS.index(name) for name in nuisance]
+    j = jac[:, cols]
+    cov = np.linalg.inv(j.T @ j) * noise ** 2
+    return float(np.sqrt(cov[0, 0])), float(np.sqrt(cov[1, 1]))
+
+
+# --- improved GEWC: moment-weighted, soft octant pairs, adaptive Gaussian window ---
+
+def _octant(xs: np.ndarray, ys: np.ndarray, cx: float, cy: float) -> np.ndarray:
+    """Direction region 0..7 of each position around (cx, cy), as in the faithful GEWC."""
+    angle = np.arctan2(ys - cy, xs - cx)
+    return ((angle + np.pi) / (2 * np.pi / N_REGIONS)).astype(np.int64) % N_REGIONS
+
+
+def _pair_entropy(patch: np.ndarray, cx: float, cy: float, bins: int) -> np.ndarray:
+    """Entropy E_p (bits, eqs. 4 and 6) of the gradient levels of each opposite-octant pair p.
+
+    Pair p = octants p and p + 4 around (cx, cy), pooled; the levels are the faithful GEWC's
+    (|∇f| of the background-free patch quantised into ``bins`` levels, non-zero gradient only).
+    """
+    grad = gradient_magnitude(patch)
+    gmax = grad.max()
+    if gmax <= 0:
+        return np.zeros(N_REGIONS // 2)
+    ys, xs = np.nonzero(grad > gmax * 1e-9)
+    level = np.minimum((grad[ys, xs] / gmax * bins).astype(np.int64), bins - 1)
+    pair = _octant(xs, ys, cx, cy) % (N_REGIONS // 2)
+    k = np.bincount(pair * bins + level, minlength=N_REGIONS // 2 * bins)
+    k = k.reshape(N_REGIONS // 2, bins).astype(np.float64)
+    n = k.sum(axis=1, keepdims=True)
+    q = np.divide(k, n, out=np.zeros_like(k), where=n > 0)                  # eq. 4
+    logq = np.log2(q, out=np.zeros_like(q), where=q > 0)
+    return -(q * logq).sum(axis=1)                                          # eq. 6
+
+
+def _soft_pair_weight(w4: np.ndarray, xs: np.ndarray, ys: np.ndarray, cx: float, cy: float) -> np.ndarray:
+    """Angular weight of each position: pair weights ``w4`` placed at the pair axes
+    (π/8 + p·π/4, period π) and interpolated linearly in angle (soft octant borders)."""
+    a = np.mod(np.arctan2(ys - cy, xs - cx) + np.pi, np.pi)
+    t = (a - np.pi / 8) / (np.pi / 4)
+    i0 = np.floor(t).astype(np.int64)
+    f = t - i0
+    return w4[i0 % 4] * (1.0 - f) + w4[(i0 + 1) % 4] * f
+
+
+def gewc_weighted_centroid(window: np.ndarray, patch: np.ndarray, mask: np.ndarray | None = None,
+                           bins: int = 32, max_iterations: int = 20, min_width: float = 0.8,
+                           tol: float = 1e-4) -> CentroidResult | None:
+    """Improved GEWC: gradient-entropy-weighted direction regions on intensity moments.
+
+    ``patch`` is the background-free component patch of :func:`gewc_centroid`; ``window`` the
+    same pixels' unthresholded values (any constant background) and ``mask`` the pixels that
+    may be used (default all; leave out other targets). Steps:
+
+    1. start at the intensity centroid of ``patch``; the 8 octants are centred there;
+    2. eqs. 4 and 6 per opposite-octant pair (the two octants' gradient levels pooled):
+       entropy E_p, weight ω_p ∝ 1 + E_p (one extra bit, so a one-level pair is not dropped);
+       each pixel's weight interpolates ω linearly in angle between the pair axes;
+    3. background b = median of the masked pixels outside the patch's gradient support;
+    4. eq. 7 with intensity moments instead of plain mean positions: the Gaussian-windowed
+       first moment  d = Σ a·g·(f−b)·(p−c) / Σ a·g·(f−b),  g = exp(−|p−c|²/2s²),
+       c ← c + (1 + σ̂²/s²)·d, re-centring the octant angles on c; the window width s follows
+       the spot (s² = σ̂², the width from the windowed second moment, at least ``min_width``),
+       until the step is below ``tol`` px.
+
+    Returns the centre and the 8 octant weights (ω of pair p on octants p and p+4, sum 1);
+    None for an empty patch or a non-positive windowed flux.
+    """
+    p = patch.astype(np.float64, copy=False)
+    start = intensity_centroid(p)
+    if start is None:
+        return None
+    cx, cy = start
+    use = np.ones(p.shape, bool) if mask is None else mask.astype(bool)
+    support = gradient_magnitude(p) > 0
+    far = use & ~support & (p <= 0)
+    b = float(np.median(window[far])) if far.sum() > 5 else 0.0
+    ys, xs = np.nonzero(use)
+    x, y = xs.astype(np.float64), ys.astype(np.float64)
+    f = window[ys, xs].astype(np.float64) - b
+    w4 = 1.0 + _pair_entropy(p, cx, cy, bins)
+    w4 = w4 / w4.mean()
+    s2 = 1.0
+    for _ in range(max_iterations):
+        dx_, dy_ = x - cx, y - cy
+        r2 = dx_ * dx_ + dy_ * dy_
+        g = _soft_pair_weight(w4, x, y, cx, cy) * np.exp(-r2 / (2.0 * s2)) * f
+        den = g.sum()
+        if den <= 0:
+            return None
+        m = float(np.clip((g * r2).sum() / den / 2.0, 0.05, 0.95 * s2))   # windowed 2nd moment
+        sig2 = m * s2 / (s2 - m)                                           # spot width σ̂²
+        gain = 1.0 + min(sig2, 9.0) / s2
+        step_x = float(np.clip(gain * (g * dx_).sum() / den, -1.0, 1.0))
+        step_y = float(np.clip(gain * (g * dy_).sum() / den, -1.0, 1.0))
+        cx, cy = cx + step_x, cy + step_y
+        s2 = float(np.clip(sig2, min_width ** 2, 9.0))
+        if abs(step_x) < tol and abs(step_y) < tol:
+            break
+    weights = np.concatenate([w4, w4]) / (2.0 * w4.sum())
+    return CentroidResult(float(cx), float(cy), weights)

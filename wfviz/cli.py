@@ -219,15 +219,15 @@ def synth(
     if list_ or scenario is None:
         for info in list_scenarios():
             out.print(f"[bold]{info.name}[/]  {info.width}x{info.height}, {info.fov_deg:g}° FOV, "
-                      f"{info.n_frames} frames at {info.fps:g} fps, {info.n_targets} targets\n    {info.description}")
+                      f"{info.n_frames} frames at {info.fps:g} fps, {info.n_targets} target{'s' if info.n_targets != 1 else ''}\n    {info.description}")
         return
     if out_dir is None:
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
-        progress.add_task(f"synth {scenario}", total=clip.n_frames)
-        path = write_scenario(clip, out_dir, avi=avi)
+        task = progress.add_task(f"synth {scenario}", total=clip.n_frames)
+        path = write_scenario(clip, out_dir, avi=avi, progress=lambda n: progress.update(task, completed=n))
     out.print(f"wrote {clip.n_frames} frames of '{scenario}' (seed {seed}) to {path}", highlight=False)
     out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False)
 

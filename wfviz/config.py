@@ -52,6 +52,16 @@ class HorizonConfig:
 
 
 @dataclass(frozen=True)
+class DefectsConfig:
+    """Hot pixels: persistent one-pixel spikes, flagged and replaced by their 3x3 median."""
+
+    enabled: bool = True
+    spike_ratio: float = field(default=0.8, metadata=_range(0.0, 1.0))
+    rate: float = field(default=0.3, metadata=_range(0.01, 1.0))
+    flag_level: float = field(default=0.75, metadata=_range(0.01, 1.0))
+
+
+@dataclass(frozen=True)
 class SuppressionConfig:
     """Background suppression: 5x5 minimum background prediction, positive residual."""
 
@@ -66,6 +76,7 @@ class DetectionConfig:
     mode: str = field(default="global", metadata={"choices": ("global", "local")})
     k_sigma: float = field(default=4.0, metadata=_range(0.0, None))
     local_window: int = field(default=31, metadata=_range(5, 255))
+    merge_gap: int = field(default=1, metadata=_range(0, 10))
     min_area: int = field(default=1, metadata=_range(1, None))
     max_area: int = field(default=400, metadata=_range(1, None))
     max_detections: int = field(default=200, metadata=_range(1, None))
@@ -110,6 +121,7 @@ class TrackingConfig:
 class GEWCConfig:
     """All stages of the GEWC wide-field tracker."""
 
+    defects: DefectsConfig = DefectsConfig()
     circle: CircleConfig = CircleConfig()
     horizon: HorizonConfig = HorizonConfig()
     suppression: SuppressionConfig = SuppressionConfig()

@@ -55,6 +55,26 @@ def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, wi
     return mean + k_sigma * np.sqrt(np.maximum(var, 1e-12))
 
 
+def _component_stats(labels: np.ndarray, n: int) -> np.ndarray:
+    """cv2-style stats (x, y, width, height, area) of labels 0..n-1 over their own pixels."""
+    idx = np.flatnonzero(labels)
+    lab = labels.ravel()[idx]
+    w = labels.shape[1]
+    xs, ys = idx % w, idx // w
+    stats = np.zeros((n, 5), dtype=np.int64)
+    big = np.iinfo(np.int64).max
+    x0, y0 = np.full(n, big), np.full(n, big)
+    x1, y1 = np.full(n, -1), np.full(n, -1)
+    np.minimum.at(x0, lab, xs), np.minimum.at(y0, lab, ys)
+    np.maximum.at(x1, lab, xs), np.maximum.at(y1, lab, ys)
+    area = np.bincount(lab, minlength=n)
+    ok = area > 0
+    stats[ok, 0], stats[ok, 1] = x0[ok], y0[ok]
+    stats[ok, 2], stats[ok, 3] = x1[ok] - x0[ok] + 1, y1[ok] - y0[ok] + 1
+    stats[:, 4] = area
+    return stats
+
+
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> Detections:
     """Threshold ``residual`` inside ``region`` and label 8-connected components."""
     res = residual.astype(np.float32, copy=False)
@@ -67,7 +87,14 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> De
         thr = adaptive_threshold(residual, region, cfg.k_sigma)
         excess = res - thr
     binary = ((excess > 0) & region).astype(np.uint8)
-    n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
+    if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
+        k = 2 * cfg.merge_gap + 1
+        grown = cv2.dilate(binary, np.ones((k, k), np.uint8))
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8, ltype=cv2.CV_32S)
+        labels[binary == 0] = 0
+        stats = _component_stats(labels, n)
+    else:
+        n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
     idx = np.flatnonzero(binary)
     lab = labels.ravel()[idx]
     val = excess.ravel()[idx]

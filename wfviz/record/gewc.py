@@ -42,6 +42,10 @@ class GEWCRecorder(Recorder):
             rec.log("camera/imaging_circle", rr.LineStrips2D(
                 [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
                 labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3], radii=0.5), static=True)
+        if result.bad_pixels_changed:
+            hp = result.bad_pixels
+            rec.log("camera/bad_pixels", rr.Points2D(hp[:, ::-1].astype(np.float32) if len(hp) else np.zeros((0, 2)),
+                                                     colors=(255, 60, 60), radii=2.0))
         if result.horizon_updated:
             line = result.horizon.polyline() if result.horizon is not None else None
             rec.log("camera/horizon", rr.LineStrips2D(

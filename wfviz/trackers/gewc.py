@@ -10,6 +10,7 @@ import numpy as np
 from wfviz.background import suppress_background
 from wfviz.centroid import CentroidResult, measure
 from wfviz.config import GEWCConfig
+from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
@@ -41,6 +42,8 @@ class GEWCResult(FrameResult):
     suppressed: np.ndarray
     measurements: tuple[Measurement, ...]
     innovations: dict[int, np.ndarray]
+    bad_pixels: np.ndarray
+    bad_pixels_changed: bool
 
 
 class GEWCTracker:
@@ -53,6 +56,7 @@ class GEWCTracker:
         c = self.config
         self.manager = TrackManager(c.kalman, c.tracking)
         self.horizon = HorizonTracker(c.horizon)
+        self.bad = BadPixels(c.defects)
         self.circle: ImagingCircle | None = None
         self._mask: np.ndarray | None = None
         self._region: np.ndarray | None = None
@@ -87,6 +91,8 @@ class GEWCTracker:
             timings[stage] = (t1 - t0) * 1e3
             t0 = t1
 
+        raw, img = img, self.bad.clean(img)
+        lap("defects")
         mask, mask_changed = self._imaging_mask(img)
         valid = ~mask
         lap("mask")
@@ -97,6 +103,7 @@ class GEWCTracker:
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
         dets = detect(suppressed, self._region, c.detection)
+        bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
@@ -116,6 +123,7 @@ class GEWCTracker:
             circle=self.circle, mask=mask, mask_changed=mask_changed, horizon=horizon,
             horizon_updated=horizon_updated, suppressed=suppressed,
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
+            bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed,
         )
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
