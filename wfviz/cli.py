@@ -11,11 +11,11 @@ from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from wfviz.clip import ClipError, open_clip
-from wfviz.config import ConfigError, GEWCConfig, config_to_toml, load_config
+from wfviz.config import ConfigError, config_to_toml
 from wfviz.frames import Clip
 from wfviz.outputs import OutputError, check_writable
 from wfviz.run import RunSummary, run
-from wfviz.trackers import TRACKERS, make_tracker
+from wfviz.trackers import TRACKERS, config_class, load_tracker
 
 app = typer.Typer(add_completion=False, no_args_is_help=True,
                   help="Wide-field IR small-target tracking with every stage recorded to Rerun.")
@@ -56,9 +56,7 @@ def _guarded(fn):  # noqa: ANN001, ANN202
 
 
 def _tracker(name: str, config: Path | None):  # noqa: ANN202
-    if name not in TRACKERS:
-        raise ValueError(f"unknown tracker '{name}' (available: {', '.join(TRACKERS)})")
-    return make_tracker(name, load_config(config))
+    return load_tracker(name, config)
 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
@@ -69,7 +67,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     options = None
     if recording is not None:
         options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
-                       trail_length=tracker.config.tracking.trail_length)
+                       trail_length=getattr(getattr(tracker.config, "tracking", None), "trail_length", 60))
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -284,7 +282,7 @@ def show_config(tracker: TrackerOpt = "gewc") -> None:
     """Print the default configuration as TOML (edit it and pass it with --config)."""
     if tracker not in TRACKERS:
         _fail(f"unknown tracker '{tracker}' (available: {', '.join(TRACKERS)})")
-    sys.stdout.write(config_to_toml(GEWCConfig()))
+    sys.stdout.write(config_to_toml(config_class(tracker)()))
 
 
 def main() -> None:

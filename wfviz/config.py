@@ -130,6 +130,12 @@ class GEWCConfig:
     kalman: KalmanConfig = KalmanConfig()
     tracking: TrackingConfig = TrackingConfig()
 
+    def validate(self) -> None:
+        """Cross-field checks (raise ConfigError)."""
+        k = self.kalman
+        if k.gate_min > k.gate_max:
+            raise ConfigError(f"kalman.gate_min ({k.gate_min}) must not exceed kalman.gate_max ({k.gate_max})")
+
 
 def _closest(name: str, options: list[str]) -> str:
     match = difflib.get_close_matches(name, options, n=1)
@@ -193,28 +199,31 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
     return cls(**kwargs)
 
 
-def config_from_dict(data: dict[str, Any]) -> GEWCConfig:
-    """Build a config from nested dicts (as parsed from TOML), validating every key."""
-    config = _build(GEWCConfig, data, "")
-    k = config.kalman
-    if k.gate_min > k.gate_max:
-        raise ConfigError(f"kalman.gate_min ({k.gate_min}) must not exceed kalman.gate_max ({k.gate_max})")
+def config_from_dict(data: dict[str, Any], cls: type = GEWCConfig) -> Any:
+    """Build a ``cls`` config (default GEWC) from nested dicts as parsed from TOML, validating
+    every key; a ``validate()`` method on the config class checks cross-field rules."""
+    config = _build(cls, data, "")
+    check = getattr(config, "validate", None)
+    if check is not None:
+        check()
     return config
 
 
-def load_config(path: str | Path | None) -> GEWCConfig:
-    """Load a TOML config file; None gives the defaults."""
+def load_config(path: str | Path | None, cls: type = GEWCConfig) -> Any:
+    """Load a TOML config file for ``cls``; None gives the defaults."""
     if path is None:
-        return GEWCConfig()
+        return cls()
     path = Path(path)
     try:
         data = tomllib.loads(path.read_text(encoding="utf-8"))
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a config file") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
     try:
-        return config_from_dict(data)
+        return config_from_dict(data, cls)
     except ConfigError as exc:
         raise ConfigError(f"{path}: {exc}") from None
 
@@ -229,7 +238,7 @@ def _toml_value(value: Any) -> str:
     return repr(value)
 
 
-def config_to_toml(config: GEWCConfig) -> str:
+def config_to_toml(config: Any) -> str:
     """Render a config as TOML; None values are written as ``"auto"``."""
     lines: list[str] = []
     for section in fields(config):
