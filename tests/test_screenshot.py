@@ -123,3 +123,31 @@ def test_render_screenshot_missing_viewer(tmp_path: Path, monkeypatch: pytest.Mo
     monkeypatch.setenv("RERUN_CLI_PATH", str(tmp_path / "no-such-rerun"))
     with pytest.raises(ScreenshotError, match="viewer binary not found"):
         render_screenshot(rrd, tmp_path / "x.png")
+
+
+@needs_vulkan
+def test_demo_recording_renders_with_its_views(tmp_path):
+    """`wfviz demo` then `wfviz screenshot`: the picture shows the blueprint's views."""
+    import subprocess
+    import sys
+
+    def wfviz(*args):
+        proc = subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=tmp_path, capture_output=True,
+                              text=True, timeout=300)
+        assert proc.returncode == 0, proc.stderr
+        return proc
+
+    wfviz("demo", "--frames", "30")
+    png = tmp_path / "shot.png"
+    wfviz("screenshot", "recordings/demo-gewc.rrd", "--frame", "20", "-o", str(png),
+          "--width", "1200", "--height", "800")
+    img = np.asarray(Image.open(png).convert("L"), dtype=np.float64)
+    assert abs(img.shape[1] - 1200) <= 4 and abs(img.shape[0] - 800) <= 4
+    assert img.std() > 10, "blank or uniform screenshot"
+    h, w = img.shape
+    camera = img[int(0.08 * h): int(0.48 * h), int(0.05 * w): int(0.55 * w)]  # top-left view
+    residual = img[int(0.55 * h): int(0.95 * h), int(0.05 * w): int(0.55 * w)]  # bottom-left view
+    plots = img[int(0.08 * h): int(0.95 * h), int(0.62 * w):]                  # right column
+    # the fisheye frame: a bright disc with dark corners, many grey levels (not the welcome screen)
+    assert camera.std() > 20 and len(np.unique(camera.astype(int))) > 60
+    assert residual.std() > 3 and plots.std() > 10

@@ -2,7 +2,11 @@
 
 from __future__ import annotations
 
+import functools
+import os
+import signal
 import sys
+import warnings
 from pathlib import Path
 from typing import Annotated, Optional
 
@@ -10,7 +14,7 @@ import typer
 from rich.console import Console
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from wfviz.clip import ClipError, open_clip
+from wfviz.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
 from wfviz.config import ConfigError, config_to_toml
 from wfviz.frames import Clip
 from wfviz.outputs import OutputError, check_writable
@@ -33,6 +37,8 @@ ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log im
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
+SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
+NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pixels of float frames by 0 instead of stopping.")]
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
@@ -40,18 +46,45 @@ def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     raise typer.Exit(code)
 
 
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+    """Print a warning as one line: ``wfviz: note|warning: ...``."""
+    if issubclass(category, ClipNote):
+        kind = "note"
+    elif issubclass(category, ClipWarning):
+        kind = "warning"
+    else:
+        kind = f"warning: {category.__name__}"
+    err.print(f"[yellow]wfviz: {kind}:[/] {message}", highlight=False, soft_wrap=True)
+
+
 def _guarded(fn):  # noqa: ANN001, ANN202
-    """Turn known bad-input errors into one-line messages (tracebacks only with --debug)."""
-    import functools
+    """Turn known bad-input errors into one-line messages (tracebacks only with --debug) and
+    warnings into one-line notes."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
-        try:
-            return fn(*args, **kwargs)
-        except (ClipError, ConfigError, OutputError, ValueError) as exc:
-            if STATE["debug"]:
-                raise
-            _fail(str(exc))
+        with warnings.catch_warnings():
+            warnings.simplefilter("always", ClipWarning)
+            warnings.showwarning = _show_warning
+            try:
+                return fn(*args, **kwargs)
+            except BadFrameError as exc:
+                if STATE["debug"]:
+                    raise
+                _fail(f"{exc} (--skip-bad-frames skips it)")
+            except (ClipError, ConfigError, OutputError, ValueError) as exc:
+                if STATE["debug"]:
+                    raise
+                _fail(str(exc))
+            except KeyboardInterrupt:
+                if STATE["debug"]:
+                    raise
+                _fail("interrupted", 128 + signal.SIGINT)
+            except OSError as exc:  # e.g. disk full while writing
+                if STATE["debug"]:
+                    raise
+                where = f"{exc.filename}: " if exc.filename else ""
+                _fail(f"{where}{exc.strerror or exc}", 1)
     return wrapper
 
 
@@ -59,8 +92,21 @@ def _tracker(name: str, config: Path | None):  # noqa: ANN202
     return load_tracker(name, config)
 
 
+def _check_outputs(clip: Clip, *outputs: Path | None) -> None:
+    """Outputs must differ from each other and from the input (they replace what they name)."""
+    given = [p for p in outputs if p is not None]
+    paths = [p.resolve() for p in given]
+    source = getattr(clip, "path", None)
+    for i, p in enumerate(paths):
+        if source is not None and p == Path(source).resolve():
+            raise ValueError(f"{given[i]}: output would overwrite the input clip")
+        if p in paths[:i]:
+            raise ValueError(f"{given[i]}: the recording and the tracks CSV need different names")
+
+
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0) -> RunSummary:
+    _check_outputs(clip, recording, tracks)
     total = clip.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
@@ -82,8 +128,6 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
 
         summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
                       start=start, stop=stop, truth=truth, gate=gate, on_frame=tick)
-    if summary.frames == 0:
-        raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
     return summary
 
 
@@ -98,25 +142,33 @@ def _read_truth(path: Path | None):  # noqa: ANN202
 
 
 def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) -> None:
-    state = "[yellow]interrupted[/]" if summary.interrupted else "done"
+    signum = summary.signal or (signal.SIGINT if summary.interrupted else None)
+    state = f"[yellow]interrupted by {signal.Signals(signum).name}[/]" if signum else "done"
     out.print(f"{state}: {summary.frames} frames in {summary.seconds:.2f} s "
               f"({summary.fps:.1f} fps overall, {summary.tracker_ms:.2f} ms/frame tracking), "
               f"{len(summary.confirmed)} tracks confirmed", highlight=False)
+    held = (f" ({summary.frames} frames, {summary.first}-{summary.last})" if summary.frames
+            else " (0 frames)")
+    if summary.skipped:
+        shown = ", ".join(map(str, summary.skipped[:10])) + (", ..." if len(summary.skipped) > 10 else "")
+        out.print(f"  skipped:   {len(summary.skipped)} unreadable frames ({shown})", highlight=False)
     if tracks is not None:
-        out.print(f"  tracks:    {tracks}", highlight=False)
+        out.print(f"  tracks:    {tracks}{held if signum else ''}", highlight=False)
     if recording is not None:
-        out.print(f"  recording: {recording}", highlight=False)
+        out.print(f"  recording: {recording}{held if signum else ''}", highlight=False)
         out.print(f"  open it:   rerun {recording}", highlight=False)
     if summary.scores is not None:
         from wfviz.evaluate import format_table
         out.print(format_table(summary.scores), highlight=False, markup=False)
-    if summary.interrupted:
-        raise typer.Exit(130)
+    if signum:
+        raise typer.Exit(128 + signum)
 
 
 @app.callback()
 def _main(debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False) -> None:
     STATE["debug"] = debug
+    if not debug:  # FFmpeg's own decode errors: wfviz reports bad frames in one line
+        os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
 
 
 @app.command()
@@ -134,11 +186,13 @@ def record(
     no_images: NoImagesOpt = False,
     truth: TruthOpt = None,
     gate: GateOpt = 3.0,
+    skip_bad_frames: SkipBadOpt = False,
+    nan_as_zero: NanOpt = False,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
     trk = _tracker(tracker, config)
     truth_points = _read_truth(truth)
-    source = open_clip(clip, fps=fps)
+    source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     output = output or Path("recordings") / f"{source.name}-{tracker}.rrd"
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
@@ -159,11 +213,13 @@ def track(
     fps: FpsOpt = None,
     truth: TruthOpt = None,
     gate: GateOpt = 3.0,
+    skip_bad_frames: SkipBadOpt = False,
+    nan_as_zero: NanOpt = False,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
     trk = _tracker(tracker, config)
     truth_points = _read_truth(truth)
-    source = open_clip(clip, fps=fps)
+    source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
                        image_every=0, source=str(clip), truth=truth_points, gate=gate)
     _report(summary, tracks, None)

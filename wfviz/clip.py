@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import warnings
 from collections.abc import Iterable, Iterator
 from contextlib import contextmanager
 from pathlib import Path
@@ -40,6 +41,9 @@ from wfviz.frames import Clip, Frame
 VIDEO_SUFFIXES = (".avi", ".mkv", ".mov", ".mp4")
 IMAGE_SUFFIXES = (".bmp", ".png", ".tif", ".tiff")
 DEFAULT_FPS = 20.0
+#: Files wfviz itself writes beside image frames (``wfviz synth``, ``demo --save-clip``):
+#: skipped without a warning.
+COMPANION_FILES = frozenset({"truth.csv", "meta.json"})
 SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
              f"({' '.join(IMAGE_SUFFIXES)}) or a .npy stack")
 
@@ -54,32 +58,68 @@ _RANGE_MARGIN = 8  # levels outside 16-235 that lossy coding of limited-range vi
 _RANGE_FRACTION = 1e-3  # share of probe pixels beyond that margin that proves raw sensor Y
 
 
+#: Smallest frame side the pipeline accepts (the 5x5 suppression, 9 px centroid window and
+#: horizon gradient/variance windows with their margins fit, with room to spare); checked by
+#: ``wfviz.run`` with the tracker's configured windows, not when a clip is opened.
+MIN_SIDE = 16
+
+
 class ClipError(ValueError):
     """Bad clip input; the message is one line: ``"<path>: <problem>"``."""
 
 
-def open_clip(path: str | Path, fps: float | None = None) -> Clip:
-    """Open a video file, a folder of images or a .npy stack; ``fps`` overrides the source's."""
+class ClipWarning(UserWarning):
+    """Input that was read with a workaround (skipped file or frame, replaced NaN); one line."""
+
+
+class ClipNote(ClipWarning):
+    """Input that was converted as documented (colour to luma); one line."""
+
+
+class BadFrameError(ClipError):
+    """One frame cannot be decoded (``skip_bad_frames`` would skip it)."""
+
+
+def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bool = False,
+              nan_as_zero: bool = False) -> Clip:
+    """Open a video file, a folder of images or a .npy stack; ``fps`` overrides the source's.
+
+    ``skip_bad_frames``: an undecodable image or video frame is skipped with a
+    :class:`ClipWarning` (its index is left out, listed in ``clip.skipped``) instead of
+    raising. ``nan_as_zero``: NaN/inf pixels of float frames become 0 (warned once) instead
+    of raising.
+    """
     p = Path(path)
     if not p.exists():
         raise ClipError(f"{p}: no such file or folder")
     if p.is_dir():
-        return ImageFolderClip(p, fps)
+        return ImageFolderClip(p, fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     suffix = p.suffix.lower()
     if suffix in VIDEO_SUFFIXES:
-        return VideoClip(p, fps)
+        return VideoClip(p, fps, skip_bad_frames=skip_bad_frames)
     if suffix == ".npy":
-        return NpyClip(p, fps)
+        return NpyClip(p, fps, nan_as_zero=nan_as_zero)
     raise ClipError(f"{p}: unsupported input; expected {SUPPORTED}")
+
+
+def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = MIN_SIDE) -> None:
+    """Raise ClipError when frames of ``shape`` (rows, columns) are below ``minimum`` a side."""
+    if min(shape) < minimum:
+        raise ClipError(f"{source}: frames are {shape[1]}x{shape[0]}, smaller than the "
+                        f"processing windows need (at least {minimum}x{minimum})")
 
 
 class _ClipBase:
     """Read-only ``Clip`` properties shared by the readers."""
 
     def __init__(self, path: Path, name: str, fps: float, n_frames: int | None,
-                 shape: tuple[int, int]) -> None:
+                 shape: tuple[int, int], nan_as_zero: bool = False) -> None:
         self.path = path
         self._name, self._fps, self._n_frames, self._shape = name, fps, n_frames, shape
+        self.nan_as_zero = nan_as_zero
+        self._nan_warned = False
+        #: frames left out with ``skip_bad_frames``: index -> problem
+        self.skipped: dict[int, str] = {}
 
     @property
     def name(self) -> str:
@@ -110,29 +150,89 @@ class _ClipBase:
         if image.shape != self._shape:
             raise ClipError(f"{source}: frame {index} is {image.shape[1]}x{image.shape[0]}, "
                             f"expected {self._shape[1]}x{self._shape[0]}")
+        if image.dtype.kind == "f":
+            image = self._finite(index, image, source)
         return Frame(index, index / self._fps, np.ascontiguousarray(image))
+
+    def _finite(self, index: int, image: np.ndarray, source: str) -> np.ndarray:
+        """``image`` with NaN/inf set to 0 if ``nan_as_zero`` (warned once), else ClipError."""
+        finite = np.isfinite(image)
+        if finite.all():
+            return image
+        bad = int(finite.size - np.count_nonzero(finite))
+        if not self.nan_as_zero:
+            raise ClipError(f"{source}: frame {index} has {bad} NaN or infinite pixels "
+                            f"(--nan-as-zero replaces them with 0)")
+        if not self._nan_warned:
+            self._nan_warned = True
+            warnings.warn(f"{source}: frame {index} has {bad} NaN or infinite pixels, replaced by 0 "
+                          f"(later frames are not reported)", ClipWarning, stacklevel=2)
+        return np.where(finite, image, image.dtype.type(0))
+
+    def _skip(self, indices: list[int], problem: str) -> None:
+        """Record and warn (once) that frames ``indices`` are left out."""
+        self.skipped.update((i, problem) for i in indices)
+        warnings.warn(f"{problem}; skipped (--skip-bad-frames)", ClipWarning, stacklevel=3)
 
 
 class ImageFolderClip(_ClipBase):
-    """A folder of PNG/TIFF/BMP images in file-name order; other and hidden files are skipped."""
+    """A folder of PNG/TIFF/BMP images in file-name order; hidden files, ``truth.csv`` and
+    ``meta.json`` are skipped, other entries too with a :class:`ClipWarning`."""
 
-    def __init__(self, folder: Path, fps: float | None = None) -> None:
-        files = sorted((p for p in folder.iterdir() if p.is_file()
-                        and p.suffix.lower() in IMAGE_SUFFIXES and not p.name.startswith(".")),
-                       key=lambda p: p.name)
+    def __init__(self, folder: Path, fps: float | None = None, *, skip_bad_frames: bool = False,
+                 nan_as_zero: bool = False) -> None:
+        visible = sorted((p for p in folder.iterdir() if not p.name.startswith(".")),
+                         key=lambda p: p.name)
+        files = [p for p in visible if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
         if not files:
             raise ClipError(f"{folder}: no images ({' '.join(IMAGE_SUFFIXES)}) in folder")
-        first = _read_image(files[0], 0)
+        others = [p.name for p in visible if p not in files and p.name not in COMPANION_FILES]
+        if others:
+            listed = ", ".join(others[:3]) + (f" and {len(others) - 3} more" if len(others) > 3 else "")
+            warnings.warn(f"{folder}: skipping {len(others)} non-image "
+                          f"{'entry' if len(others) == 1 else 'entries'} ({listed})", ClipWarning,
+                          stacklevel=3)
         self.files = files
+        self.skip_bad_frames = skip_bad_frames
+        self._colour_noted = False
+        first = None
+        for index, path in enumerate(files):  # the first decodable image sets size and type
+            try:
+                first, _ = _read_image(path, index)
+                break
+            except ClipError:
+                if not skip_bad_frames or index == len(files) - 1:
+                    raise
+        assert first is not None
         self.dtype = first.dtype
         name = folder.name or folder.resolve().name
-        super().__init__(folder, name, _fps(folder, fps, None), len(files), first.shape[:2])
+        super().__init__(folder, name, _fps(folder, fps, None), len(files), first.shape[:2],
+                         nan_as_zero)
+
+    def _read(self, path: Path, index: int) -> np.ndarray:
+        """Decode image ``index``; note the first colour image converted to luma."""
+        image, colour = _read_image(path, index)
+        if colour and not self._colour_noted:
+            self._colour_noted = True
+            warnings.warn(f"{path}: colour image converted to luma (0.299 R + 0.587 G + 0.114 B); "
+                          f"later colour images too", ClipNote, stacklevel=3)
+        return image
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        """Yield frames ``start <= index < stop``, reading one image at a time."""
+        """Yield frames ``start <= index < stop``, reading one image at a time.
+
+        With ``skip_bad_frames`` an undecodable image is skipped (index left out) with a
+        warning.
+        """
         for index in _indices(start, stop, len(self.files)):
             path = self.files[index]
-            image = _read_image(path, index)
+            try:
+                image = self._read(path, index)
+            except BadFrameError as exc:
+                if not self.skip_bad_frames:
+                    raise
+                self._skip([index], str(exc))
+                continue
             if image.shape != self.shape or image.dtype != self.dtype:
                 raise ClipError(f"{path}: image {index} is {_describe(image.shape, image.dtype)}, "
                                 f"but {self.files[0].name} is {_describe(self.shape, self.dtype)}")
@@ -147,13 +247,18 @@ class NpyClip(_ClipBase):
     its sign). Object, string, complex and structured arrays raise ``ClipError``.
     """
 
-    def __init__(self, path: Path, fps: float | None = None) -> None:
+    def __init__(self, path: Path, fps: float | None = None, *, nan_as_zero: bool = False) -> None:
         array = self._load(path)
-        if array.ndim not in (2, 3) or 0 in array.shape:
+        if array.ndim not in (2, 3):
             raise ClipError(f"{path}: expected a (T, H, W) or (H, W) array, got {array.shape}")
+        if 0 in array.shape:
+            problem = "no frames" if array.ndim == 3 and array.shape[0] == 0 else "empty frames"
+            raise ClipError(f"{path}: {problem}; expected a (T, H, W) or (H, W) array with no zero "
+                            f"dimension, got {array.shape}")
         self.dtype = _frame_dtype(array.dtype, path)
         n_frames = 1 if array.ndim == 2 else array.shape[0]
-        super().__init__(path, path.stem, _fps(path, fps, None), n_frames, array.shape[-2:])
+        super().__init__(path, path.stem, _fps(path, fps, None), n_frames, array.shape[-2:],
+                         nan_as_zero)
 
     @staticmethod
     def _load(path: Path) -> np.ndarray:
@@ -161,6 +266,9 @@ class NpyClip(_ClipBase):
         try:
             return np.load(path, mmap_mode="r", allow_pickle=False)
         except (ValueError, OSError, EOFError) as exc:
+            if _npy_dtype(path).hasobject:
+                raise ClipError(f"{path}: cannot load .npy array: it holds Python objects "
+                                f"(dtype object), not pixels, and is read with allow_pickle=False") from None
             problem = str(exc).splitlines()[0] if str(exc) else type(exc).__name__
             raise ClipError(f"{path}: cannot load .npy array ({problem})") from None
 
@@ -176,7 +284,8 @@ class NpyClip(_ClipBase):
 class VideoClip(_ClipBase):
     """A video file read with ``cv2.VideoCapture``, as luma (see the module docstring)."""
 
-    def __init__(self, path: Path, fps: float | None = None, luma: LumaMode = "auto") -> None:
+    def __init__(self, path: Path, fps: float | None = None, luma: LumaMode = "auto", *,
+                 skip_bad_frames: bool = False) -> None:
         if luma not in ("auto", "raw", "expand", "bgr"):
             raise ValueError(f"luma must be auto, raw, expand or bgr, got {luma!r}")
         cap = _capture(path)
@@ -192,27 +301,48 @@ class VideoClip(_ClipBase):
         self.luma: LumaMode = _choose_luma(raw, bgr) if luma == "auto" else luma
         shape = bgr[0].shape[:2]
         n_frames = int(count) if math.isfinite(count) and count > 0 else None
+        self.skip_bad_frames = skip_bad_frames
         super().__init__(path, path.stem, _fps(path, fps, native_fps), n_frames, shape)
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
         """Yield frames ``start <= index < stop`` from a fresh capture, seeking to ``start``.
 
         Reads until ``stop`` or the end of the stream: ``n_frames`` is the container's
-        estimate, so it does not cut the pass short.
+        estimate, so it does not cut the pass short. A read that fails well before that
+        estimate is a bad frame: ``BadFrameError``, or with ``skip_bad_frames`` a warning and
+        the index left out (reading goes on to the estimate, so a truncated file ends there).
         """
         indices = _indices(start, stop, None)
         if isinstance(indices, range) and not indices:
             return
         cap = _capture(self.path, self.luma)
+        failed: list[int] = []
         try:
             cap = _seek(cap, self.path, self.luma, start)
             for index in indices:
                 image = _decode(cap, self.luma)
                 if image is None:
-                    return
+                    if not self._expects_more(index):
+                        break
+                    if not self.skip_bad_frames:
+                        raise BadFrameError(f"{self.path}: cannot decode frame {index} of "
+                                            f"{self.n_frames}, truncated or corrupt video")
+                    failed.append(index)
+                    continue
+                if failed:
+                    self._skip(failed, f"{self.path}: cannot decode {_span(failed)}")
+                    failed = []
                 yield self._frame(index, image, str(self.path))
+            if failed:
+                self._skip(failed, f"{self.path}: cannot decode {_span(failed)} of {self.n_frames} "
+                                   f"(truncated video?)")
         finally:
             cap.release()
+
+    def _expects_more(self, index: int) -> bool:
+        """Whether the container says the stream goes on past ``index`` (beyond estimate slack)."""
+        n = self.n_frames
+        return n is not None and index < n - max(1, n // 200)
 
 
 def _indices(start: int, stop: int | None, n: int | None) -> Iterable[int]:
@@ -246,22 +376,41 @@ def _frame_dtype(dtype: np.dtype, path: Path) -> np.dtype:
     raise ClipError(f"{path}: unsupported pixel type {dtype}")
 
 
-def _read_image(path: Path, index: int) -> np.ndarray:
-    """Decode one image at full range and reduce it to 2-D luma."""
+def _read_image(path: Path, index: int) -> tuple[np.ndarray, bool]:
+    """Decode one image at full range and reduce it to 2-D luma; True if it was colour."""
     try:
-        image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+        with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):  # the error below says it in one line
+            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
     except cv2.error:
         image = None
     if image is None or image.size == 0:
-        raise ClipError(f"{path}: cannot decode image {index}")
-    if image.ndim == 3 and image.shape[2] in (3, 4):
+        raise BadFrameError(f"{path}: cannot decode image {index}")
+    colour = image.ndim == 3 and image.shape[2] in (3, 4)
+    if colour:
         code = cv2.COLOR_BGR2GRAY if image.shape[2] == 3 else cv2.COLOR_BGRA2GRAY
         image = cv2.cvtColor(image, code)
     elif image.ndim == 3 and image.shape[2] == 1:
         image = image[:, :, 0]
     if image.ndim != 2:
         raise ClipError(f"{path}: image {index} has unsupported shape {image.shape}")
-    return image.astype(_frame_dtype(image.dtype, path), copy=False)
+    return image.astype(_frame_dtype(image.dtype, path), copy=False), colour
+
+
+def _npy_dtype(path: Path) -> np.dtype:
+    """The dtype in a .npy header (uint8 if the header is unreadable)."""
+    try:
+        with open(path, "rb") as fh:
+            version = np.lib.format.read_magic(fh)
+            reader = (np.lib.format.read_array_header_1_0 if version == (1, 0)
+                      else np.lib.format.read_array_header_2_0)
+            return np.dtype(reader(fh)[2])
+    except (ValueError, OSError, EOFError, TypeError):
+        return np.dtype(np.uint8)
+
+
+def _span(indices: list[int]) -> str:
+    """``"frame 4"`` or ``"frames 4-9"`` (consecutive indices)."""
+    return f"frame {indices[0]}" if len(indices) == 1 else f"frames {indices[0]}-{indices[-1]}"
 
 
 def _describe(shape: tuple[int, ...], dtype: np.dtype) -> str:
@@ -287,10 +436,10 @@ def _capture(path: Path, luma: LumaMode = "bgr") -> cv2.VideoCapture:
 
 
 @contextmanager
-def _quiet() -> Iterator[None]:
-    """Raise OpenCV's process-wide log level to ERROR for one read (silences the 8UC1 warning)."""
+def _quiet(level: int = cv2.utils.logging.LOG_LEVEL_ERROR) -> Iterator[None]:
+    """Raise OpenCV's process-wide log level (default ERROR: silences the 8UC1 warning) for one read."""
     old = cv2.utils.logging.getLogLevel()
-    cv2.utils.logging.setLogLevel(cv2.utils.logging.LOG_LEVEL_ERROR)
+    cv2.utils.logging.setLogLevel(level)
     try:
         yield
     finally:

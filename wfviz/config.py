@@ -49,6 +49,7 @@ class HorizonConfig:
     every: int = field(default=10, metadata=_range(1, None))
     smoothing: float = field(default=0.5, metadata=_range(0.0, 1.0))
     margin: float = field(default=4.0, metadata=_range(0.0, None))
+    exclude_ground: str = field(default="always", metadata={"choices": ("always", "auto", "never")})
 
 
 @dataclass(frozen=True)
@@ -76,6 +77,7 @@ class DetectionConfig:
     mode: str = field(default="global", metadata={"choices": ("global", "local")})
     k_sigma: float = field(default=4.0, metadata=_range(0.0, None))
     local_window: int = field(default=31, metadata=_range(5, 255))
+    significance: bool = False
     merge_gap: int = field(default=1, metadata=_range(0, 10))
     min_area: int = field(default=1, metadata=_range(1, None))
     max_area: int = field(default=400, metadata=_range(1, None))
@@ -110,11 +112,14 @@ class TrackingConfig:
     """Track management: confirmation, deletion, meeting mode (eq. 15)."""
 
     confirm_hits: int = field(default=6, metadata=_range(1, None))
+    confirm_significance: float = field(default=0.0, metadata=_range(0.0, None))
+    min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))
     max_meeting_frames: int = field(default=40, metadata=_range(1, None))
     meeting_velocity: str = field(default="kalman", metadata={"choices": ("kalman", "eq15")})
     trail_length: int = field(default=60, metadata=_range(2, None))
+    compensate_motion: bool = False
 
 
 @dataclass(frozen=True)
@@ -137,9 +142,171 @@ class GEWCConfig:
             raise ConfigError(f"kalman.gate_min ({k.gate_min}) must not exceed kalman.gate_max ({k.gate_max})")
 
 
+@dataclass(frozen=True)
+class FusionFeaturesConfig:
+    """Fusion tracker features: centre of the bounding rectangle, area, grey sum."""
+
+    centre: str = field(default="bbox", metadata={"choices": ("bbox", "min_area_rect", "centroid")})
+    grey: str = field(default="residual", metadata={"choices": ("residual", "raw")})
+
+
+@dataclass(frozen=True)
+class FusionMatchConfig:
+    """Fused feature matching (alpha centre + beta area + gamma grey), windows, re-detection."""
+
+    alpha: float = field(default=0.4, metadata=_range(0.0, None))
+    beta: float = field(default=0.3, metadata=_range(0.0, None))
+    gamma: float = field(default=0.3, metadata=_range(0.0, None))
+    cost: str = field(default="sum", metadata={"choices": ("sum", "scalar")})
+    max_cost: float = field(default=1.0, metadata=_range(0.0, None))
+    pad: int = field(default=6, metadata=_range(0, 64))
+    recover_radius: float = field(default=40.0, metadata=_range(1.0, None))
+    recover_max_cost: float = field(default=0.5, metadata=_range(0.0, None))
+    detect_every: int = field(default=10, metadata=_range(0, None))
+
+
+@dataclass(frozen=True)
+class FusionConfig:
+    """All stages of the feature-fusion Kalman tracker (METHODS.md section 2)."""
+
+    defects: DefectsConfig = DefectsConfig()
+    circle: CircleConfig = CircleConfig()
+    horizon: HorizonConfig = HorizonConfig()
+    suppression: SuppressionConfig = SuppressionConfig()
+    detection: DetectionConfig = DetectionConfig()
+    features: FusionFeaturesConfig = FusionFeaturesConfig()
+    fusion: FusionMatchConfig = FusionMatchConfig()
+    kalman: KalmanConfig = KalmanConfig()
+    tracking: TrackingConfig = TrackingConfig()
+
+    def validate(self) -> None:
+        """Cross-field checks (raise ConfigError)."""
+        k, f = self.kalman, self.fusion
+        if k.gate_min > k.gate_max:
+            raise ConfigError(f"kalman.gate_min ({k.gate_min}) must not exceed kalman.gate_max ({k.gate_max})")
+        if f.alpha + f.beta + f.gamma <= 0:
+            raise ConfigError("fusion.alpha + fusion.beta + fusion.gamma must be positive")
+        t = self.tracking  # GEWC-only options of the shared section
+        if getattr(t, "confirm_significance", 0.0) > 0:
+            raise ConfigError("tracking.confirm_significance is not supported by the fusion tracker "
+                              "(candidates found in the search windows carry no significance); keep 0")
+        if getattr(t, "compensate_motion", False):
+            raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
+
+
+@dataclass(frozen=True)
+class StarSegmentationConfig:
+    """Star-field segmentation: smooth background, matched smoothing, robust k-sigma threshold."""
+
+    background_block: int = field(default=32, metadata=_range(4, 256))
+    background_sigma: float = field(default=4.0, metadata=_range(0.5, 64.0))
+    smooth_sigma: float = field(default=1.0, metadata=_range(0.0, 5.0))
+    k_sigma: float = field(default=5.0, metadata=_range(0.5, None))
+    min_area: int = field(default=2, metadata=_range(1, None))
+    max_area: int = field(default=2000, metadata=_range(1, None))
+
+
+@dataclass(frozen=True)
+class RegistrationConfig:
+    """Frame-to-frame star pairing by distances to two reference stars (mu), robust fallback."""
+
+    mu: float = field(default=1.0, metadata=_range(0.05, None))
+    search_box: int = field(default=64, metadata=_range(4, 1024))
+    reference_separation: float = field(default=200.0, metadata=_range(1.0, None))
+    min_paired_fraction: float = field(default=0.5, metadata=_range(0.0, 1.0))
+    max_rms: float = field(default=0.5, metadata=_range(0.01, None))
+    vote_stars: int = field(default=60, metadata=_range(3, None))
+    fallback: bool = True
+
+
+@dataclass(frozen=True)
+class CandidateConfig:
+    """Unpaired points: star-catalogue, sensor-defect and border filters before the chains."""
+
+    star_radius: float = field(default=1.5, metadata=_range(0.0, None))
+    defect_radius: float = field(default=0.75, metadata=_range(0.0, None))
+    defect_frames: int = field(default=3, metadata=_range(2, None))
+    border: float = field(default=3.0, metadata=_range(0.0, None))
+
+
+@dataclass(frozen=True)
+class ChainConfig:
+    """Target chains: three-frame test (v), New/Run/Out lists (N), rejoining (Dis, theta)."""
+
+    v: float = field(default=1.0, metadata=_range(0.0, None))
+    min_speed: float = field(default=0.5, metadata=_range(0.0, None))
+    max_speed: float = field(default=10.0, metadata=_range(0.1, None))
+    max_turn: float = field(default=45.0, metadata=_range(0.0, 180.0))
+    length: int = field(default=4, metadata=_range(2, None))
+    dis: float = field(default=1.0, metadata=_range(0.0, None))
+    theta: float = field(default=30.0, metadata=_range(0.0, 180.0))
+    gate: float = field(default=3.0, metadata=_range(0.1, None))
+    backtrack: int = field(default=4, metadata=_range(0, 20))
+
+
+@dataclass(frozen=True)
+class ResegmentConfig:
+    """Re-segmentation around a Run chain's prediction with a local, lower threshold."""
+
+    enabled: bool = True
+    window: int = field(default=15, metadata=_range(5, 255))
+    k_sigma: float = field(default=3.5, metadata=_range(0.5, None))
+    radius: float = field(default=2.0, metadata=_range(0.1, None))
+    references: int = field(default=3, metadata=_range(0, 10))
+    min_offset: float = field(default=4.0, metadata=_range(0.0, None))
+    star_leak: float = field(default=0.005, metadata=_range(0.0, None))
+
+
+@dataclass(frozen=True)
+class StarKalmanConfig:
+    """Constant-velocity Kalman filter of a Run chain (reference-frame px, px/frame)."""
+
+    q: float = field(default=0.01, metadata=_range(0.0, None))
+    r: float = field(default=0.1, metadata=_range(1e-6, None))
+    initial_velocity_std: float = field(default=5.0, metadata=_range(0.0, None))
+
+
+@dataclass(frozen=True)
+class StarTrackingConfig:
+    """Run chains: coasting limit (consecutive predictions) and the trail drawn in the recording."""
+
+    max_misses: int = field(default=10, metadata=_range(1, None))
+    trail_length: int = field(default=60, metadata=_range(2, None))
+    compensate_motion: bool = False
+
+
+@dataclass(frozen=True)
+class StarfieldConfig:
+    """All stages of the star-field tracker (METHODS.md section 3)."""
+
+    segmentation: StarSegmentationConfig = StarSegmentationConfig()
+    registration: RegistrationConfig = RegistrationConfig()
+    candidates: CandidateConfig = CandidateConfig()
+    chains: ChainConfig = ChainConfig()
+    resegment: ResegmentConfig = ResegmentConfig()
+    kalman: StarKalmanConfig = StarKalmanConfig()
+    tracking: StarTrackingConfig = StarTrackingConfig()
+
+    def validate(self) -> None:
+        """Cross-field checks (raise ConfigError)."""
+        c, s = self.chains, self.segmentation
+        if c.min_speed > c.max_speed:
+            raise ConfigError(f"chains.min_speed ({c.min_speed}) must not exceed chains.max_speed ({c.max_speed})")
+        if s.min_area > s.max_area:
+            raise ConfigError(f"segmentation.min_area ({s.min_area}) must not exceed segmentation.max_area ({s.max_area})")
+
+
 def _closest(name: str, options: list[str]) -> str:
     match = difflib.get_close_matches(name, options, n=1)
     return f" (did you mean '{match[0]}'?)" if match else f" (known: {', '.join(options)})"
+
+
+def _finite(value: int | float) -> bool:
+    """Whether ``value`` is a finite float (huge integers overflow: not finite)."""
+    try:
+        return math.isfinite(float(value))
+    except OverflowError:
+        return False
 
 
 def _coerce(key: str, value: Any, hint: Any, meta: dict[str, Any]) -> Any:
@@ -149,8 +316,9 @@ def _coerce(key: str, value: Any, hint: Any, meta: dict[str, Any]) -> Any:
         if value is None or (isinstance(value, str) and value == "auto"):
             return None
         if not (isinstance(value, list) and len(value) == 2
-                and all(isinstance(v, (int, float)) and not isinstance(v, bool) for v in value)):
-            raise ConfigError(f"{key}: expected [x, y] (two numbers) or \"auto\", got {value!r}")
+                and all(isinstance(v, (int, float)) and not isinstance(v, bool) and _finite(v)
+                        for v in value)):
+            raise ConfigError(f"{key}: expected [x, y] (two finite numbers) or \"auto\", got {value!r}")
         return (float(value[0]), float(value[1]))
     if hint is bool:
         if not isinstance(value, bool):
@@ -169,13 +337,16 @@ def _coerce(key: str, value: Any, hint: Any, meta: dict[str, Any]) -> Any:
     want_int = hint is int
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{key}: expected {'an integer' if want_int else 'a number'}, got {value!r}")
+    lo, hi = meta.get("range", (None, None))
+    accepted = f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+    if not _finite(value):
+        if isinstance(value, int):  # too large for a float
+            raise ConfigError(f"{key}: {str(value)[:8]}... ({len(str(value))} digits) is out of "
+                              f"range {accepted}")
+        raise ConfigError(f"{key}: expected a finite number, got {value!r}")
     if want_int and not float(value).is_integer():
         raise ConfigError(f"{key}: expected an integer, got {value!r}")
-    if not math.isfinite(float(value)):
-        raise ConfigError(f"{key}: expected a finite number, got {value!r}")
-    lo, hi = meta.get("range", (None, None))
     if (lo is not None and value < lo) or (hi is not None and value > hi):
-        accepted = f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
         raise ConfigError(f"{key}: {value!r} is out of range {accepted}")
     return int(value) if want_int else float(value)
 

@@ -18,7 +18,8 @@ class Detections:
     ``area`` pixel counts; ``peak`` and ``flux`` residual maximum and sum; ``bbox`` (N, 4)
     x, y, width, height; ``component`` each detection's label in ``labels`` (the label image,
     0 = background); ``threshold`` the adaptive threshold used (its median for a local
-    threshold, whose map is ``threshold_map``).
+    threshold, whose map is ``threshold_map``); ``significance`` the signal-to-clutter ratio of
+    each detection when computed (:func:`signal_to_clutter`).
     """
 
     xy: np.ndarray
@@ -30,6 +31,7 @@ class Detections:
     labels: np.ndarray
     threshold: float
     threshold_map: np.ndarray | None = None
+    significance: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -44,15 +46,21 @@ def adaptive_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float)
     return float(mean[0, 0] + k_sigma * max(std[0, 0], 1e-6))
 
 
-def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, window: int) -> np.ndarray:
-    """Threshold map = local mean + k * local std of the residual over ``window`` x ``window``
-    (inside ``region`` only): a cell-averaging CFAR, so textured clutter raises its own bar."""
+def local_stats(residual: np.ndarray, region: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
+    """Mean and std of the residual over ``window`` x ``window`` boxes, inside ``region`` only."""
     res = residual.astype(np.float32, copy=False)
     m = region.astype(np.float32)
     n = cv2.blur(m, (window, window)) + 1e-6
     mean = cv2.blur(res * m, (window, window)) / n
     var = cv2.blur(res * res * m, (window, window)) / n - mean * mean
-    return mean + k_sigma * np.sqrt(np.maximum(var, 1e-12))
+    return mean, np.sqrt(np.maximum(var, 1e-12))
+
+
+def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, window: int) -> np.ndarray:
+    """Threshold map = local mean + k * local std of the residual (a cell-averaging CFAR, so
+    textured clutter raises its own bar)."""
+    mean, std = local_stats(residual, region, window)
+    return mean + k_sigma * std
 
 
 def _component_stats(labels: np.ndarray, n: int) -> np.ndarray:
@@ -75,11 +83,35 @@ def _component_stats(labels: np.ndarray, n: int) -> np.ndarray:
     return stats
 
 
-def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> Detections:
-    """Threshold ``residual`` inside ``region`` and label 8-connected components."""
+def signal_to_clutter(image: np.ndarray, region: np.ndarray, xy: np.ndarray, peak: np.ndarray,
+                      window: int) -> np.ndarray:
+    """SCR of each detection: residual peak / std of the image over ``window`` x ``window``
+    around it (inside ``region``); textured clutter has a large std, so its spots score low."""
+    if len(xy) == 0:
+        return np.zeros(0)
+    _, std = local_stats(image, region, window)
+    r = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
+    c = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
+    return peak / np.maximum(std[r, c], 1e-6)
+
+
+def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
+           zones: list[np.ndarray] | None = None) -> Detections:
+    """Threshold ``residual`` inside ``region`` and label 8-connected components.
+
+    ``zones`` (masks partitioning the region, e.g. sky and ground) each get their own global
+    threshold, so a cluttered zone does not raise the bar in a clean one.
+    """
     res = residual.astype(np.float32, copy=False)
-    if cfg.mode == "local":
-        thr_map: np.ndarray | None = local_threshold(res, region, cfg.k_sigma, cfg.local_window)
+    if cfg.mode == "global" and zones:
+        thr_map = np.full(res.shape, np.inf, dtype=np.float32)
+        for z in zones:
+            thr_map[z] = adaptive_threshold(residual, z, cfg.k_sigma)
+        thr = adaptive_threshold(residual, zones[0], cfg.k_sigma)
+        excess = res - thr_map
+    elif cfg.mode == "local":
+        lmean, lstd = local_stats(res, region, cfg.local_window)
+        thr_map: np.ndarray | None = lmean + cfg.k_sigma * lstd
         thr = float(np.median(thr_map[region])) if region.any() else float("inf")
         excess = res - thr_map
     else:
@@ -111,6 +143,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig) -> De
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = np.nonzero((area >= cfg.min_area) & (area <= cfg.max_area))[0]
     keep = keep[np.argsort(-peak[keep], kind="stable")][: cfg.max_detections]
+
     return Detections(
         xy=np.column_stack([cx[keep], cy[keep]]),
         area=area[keep].astype(np.int64),

@@ -24,14 +24,21 @@ def part_path(path: Path) -> Path:
 def check_writable(path: Path) -> None:
     """Create the parent folder if needed and check a file can be written there."""
     parent = path.parent
+    for folder in (parent, *parent.parents):
+        if folder.exists() and not folder.is_dir():
+            raise OutputError(f"{folder}: is a file, cannot hold the output {path.name}")
     try:
         parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{parent}: cannot create output folder ({exc.strerror})") from None
     if path.is_dir():
         raise OutputError(f"{path}: is a folder, expected a file name")
-    if not os.access(parent, os.W_OK):
-        raise OutputError(f"{parent}: output folder is not writable")
+    probe = parent / f".wfviz-probe-{os.getpid()}"
+    try:  # a real write: os.access says yes to root even on read-only mounts
+        probe.write_bytes(b"")
+        probe.unlink()
+    except OSError as exc:
+        raise OutputError(f"{parent}: output folder is not writable ({exc.strerror})") from None
 
 
 def commit(path: Path) -> None:

@@ -67,6 +67,8 @@ class _Track:
     confirmed: bool = False
     meeting: bool = False
     meeting_frames: int = 0
+    score_sum: float = 0.0  # sum of the significance of the hits
+    origin: np.ndarray | None = None  # birth position, moved with the camera (scene-fixed)
     history: deque = field(default_factory=lambda: deque(maxlen=64))  # reported (x, y)
     velocities: list = field(default_factory=list)  # filtered (vx, vy) before meeting, last 3
     innovation: np.ndarray | None = None
@@ -101,6 +103,14 @@ class TrackManager:
         self._next_id = 1
         self._frame = 0
         self._events: list[TrackEvent] = []
+
+    def shift(self, dx: float, dy: float) -> None:
+        """Move every track (state and history) by the camera's image motion (dx, dy)."""
+        for t in self.tracks:
+            t.x[0] += dx
+            t.x[1] += dy
+            t.origin = t.origin + (dx, dy)
+            t.history = deque(((x + dx, y + dy) for x, y in t.history), maxlen=t.history.maxlen)
 
     # -- predict --------------------------------------------------------------------------
     def predict(self, frame: int) -> list[Prediction]:
@@ -197,11 +207,17 @@ class TrackManager:
         return (np.abs(xy[None, :, :] - c[:, None, :]) <= h[:, None, :]).all(axis=2).any(axis=0)
 
     # -- update ---------------------------------------------------------------------------
-    def update(self, measurements: dict[int, tuple[float, float]], births: np.ndarray) -> list[TrackEvent]:
+    def update(self, measurements: dict[int, tuple[float, float]], births: np.ndarray,
+               scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None
+               ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
-        Returns the frame's events (including meeting events from :meth:`predict`).
+        ``scores`` / ``birth_scores``: the significance of each measurement / birth; a track is
+        confirmed at ``confirm_hits`` hits when its mean significance also reaches
+        ``confirm_significance`` (0 = hits only, as in the paper). Returns the frame's events
+        (including meeting events from :meth:`predict`).
         """
+        scores = scores or {}
         idx = sorted(measurements)
         for t in self.tracks:
             t.innovation = None
@@ -219,10 +235,17 @@ class TrackManager:
             if i in measurements:
                 t.hits += 1
                 t.misses = 0
+                t.score_sum += scores.get(i, 0.0)
                 t.history.append(measurements[i])
-                if not t.confirmed and t.hits >= self.tcfg.confirm_hits:
+                need = self.tcfg.confirm_significance
+                moved = float(np.hypot(*(np.asarray(measurements[i]) - t.origin)))
+                if (not t.confirmed and t.hits >= self.tcfg.confirm_hits
+                        and (need <= 0 or t.score_sum / t.hits >= need)
+                        and moved >= self.tcfg.min_displacement):
                     t.confirmed = True
-                    self._event("confirmed", t, f"confirmed after {t.hits} hits")
+                    why = f", mean significance {t.score_sum / t.hits:.1f}" if need > 0 else ""
+                    why += f", moved {moved:.1f} px" if self.tcfg.min_displacement > 0 else ""
+                    self._event("confirmed", t, f"confirmed after {t.hits} hits{why}")
             elif t.meeting:
                 t.history.append((float(t.x[0]), float(t.x[1])))
             else:
@@ -234,8 +257,11 @@ class TrackManager:
                     continue
             survivors.append(t)
         self.tracks = survivors
-        for bx, by in np.asarray(births, dtype=np.float64).reshape(-1, 2):
-            t = _Track(self._next_id, np.array([bx, by, 0.0, 0.0]), self.P0.copy())
+        births = np.asarray(births, dtype=np.float64).reshape(-1, 2)
+        bscore = np.zeros(len(births)) if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
+        for (bx, by), sc in zip(births, bscore):
+            t = _Track(self._next_id, np.array([bx, by, 0.0, 0.0]), self.P0.copy(), score_sum=float(sc),
+                       origin=np.array([bx, by]))
             t.history.append((float(bx), float(by)))
             self._next_id += 1
             self.tracks.append(t)

@@ -4,10 +4,13 @@ from __future__ import annotations
 
 from pathlib import Path
 
+from wfviz.record.fusion import FusionRecorder
 from wfviz.record.gewc import GEWCRecorder
 from wfviz.record.recorder import Recorder, track_color
+from wfviz.record.starfield import StarfieldRecorder
 
-RECORDERS: dict[str, type[Recorder]] = {"gewc": GEWCRecorder}
+RECORDERS: dict[str, type[Recorder]] = {"gewc": GEWCRecorder, "fusion": FusionRecorder,
+                                         "starfield": StarfieldRecorder}
 
 
 def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:

@@ -52,6 +52,9 @@ class GEWCRecorder(Recorder):
                 [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
         if images:
             rec.log("suppressed/image", rr.Image(result.suppressed))
+        if result.camera_shift is not None:
+            rec.log("registration/dx", rr.Scalars(result.camera_shift[0]))
+            rec.log("registration/dy", rr.Scalars(result.camera_shift[1]))
         m = result.measurements
         rec.log("camera/centroids", rr.Points2D(
             [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],

@@ -6,12 +6,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from wfviz.config import GEWCConfig, load_config
+from wfviz.config import FusionConfig, GEWCConfig, StarfieldConfig, load_config
 from wfviz.trackers.base import FrameResult, Tracker
+from wfviz.trackers.fusion import FusionTracker
 from wfviz.trackers.gewc import GEWCTracker
+from wfviz.trackers.starfield import StarfieldTracker
 
 # name -> (tracker class, config class)
-TRACKERS: dict[str, tuple[type, type]] = {"gewc": (GEWCTracker, GEWCConfig)}
+TRACKERS: dict[str, tuple[type, type]] = {"gewc": (GEWCTracker, GEWCConfig),
+                                          "fusion": (FusionTracker, FusionConfig),
+                                          "starfield": (StarfieldTracker, StarfieldConfig)}
 
 
 def _entry(name: str) -> tuple[type, type]:
@@ -37,5 +41,6 @@ def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
     return make_tracker(name, load_config(config_file, config_class(name)))
 
 
-__all__ = ["TRACKERS", "FrameResult", "GEWCTracker", "Tracker", "config_class", "load_tracker",
+__all__ = ["TRACKERS", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "Tracker", "config_class",
+           "load_tracker",
            "make_tracker"]

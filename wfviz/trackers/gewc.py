@@ -3,7 +3,7 @@
 from __future__ import annotations
 
 import time
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import numpy as np
 
@@ -11,9 +11,10 @@ from wfviz.background import suppress_background
 from wfviz.centroid import CentroidResult, measure
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect
+from wfviz.detection import Detections, detect, signal_to_clutter
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
+from wfviz.registration import MotionEstimator
 from wfviz.imaging_circle import ImagingCircle, estimate_imaging_circle, non_imaging_mask
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import TrackManager
@@ -44,6 +45,7 @@ class GEWCResult(FrameResult):
     innovations: dict[int, np.ndarray]
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
+    camera_shift: tuple[float, float] | None  # (dx, dy) when tracking.compensate_motion
 
 
 class GEWCTracker:
@@ -54,12 +56,15 @@ class GEWCTracker:
     def __init__(self, config: GEWCConfig | None = None) -> None:
         self.config = config or GEWCConfig()
         c = self.config
+        self._significance = c.detection.significance or c.tracking.confirm_significance > 0
         self.manager = TrackManager(c.kalman, c.tracking)
         self.horizon = HorizonTracker(c.horizon)
         self.bad = BadPixels(c.defects)
+        self.motion = MotionEstimator() if c.tracking.compensate_motion else None
         self.circle: ImagingCircle | None = None
         self._mask: np.ndarray | None = None
         self._region: np.ndarray | None = None
+        self._zones: list[np.ndarray] | None = None
         self._region_key: object = None
 
     def _imaging_mask(self, image: np.ndarray) -> tuple[np.ndarray, bool]:
@@ -77,6 +82,12 @@ class GEWCTracker:
         self.circle = circle
         self._mask = non_imaging_mask(image.shape, circle, cc.margin)
         return self._mask, True
+
+    def _exclude_ground(self) -> bool:
+        """Search only above the horizon: always, never, or (auto) in a fisheye sky view, i.e.
+        when an imaging circle was found; a narrow view may show targets over the ground."""
+        mode = self.config.horizon.exclude_ground
+        return mode == "always" or (mode == "auto" and self.circle is not None)
 
     def step(self, frame: Frame) -> GEWCResult:
         """Run every stage on one frame."""
@@ -98,13 +109,25 @@ class GEWCTracker:
         lap("mask")
         horizon, horizon_updated = self.horizon.update(img, valid)
         if horizon_updated or mask_changed or self._region is None:
-            self._region = search_region(valid, horizon, c.horizon.margin)
+            sky = search_region(valid, horizon, c.horizon.margin)
+            if self._exclude_ground() or horizon is None:
+                self._region, self._zones = sky, None
+            else:  # search the ground too, with its own threshold
+                self._region, self._zones = valid, [sky, valid & ~sky]
         lap("horizon")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
-        dets = detect(suppressed, self._region, c.detection)
+        dets = detect(suppressed, self._region, c.detection, self._zones)
+        if self._significance:
+            dets = replace(dets, significance=signal_to_clutter(
+                img, self._region, dets.xy, dets.peak, c.detection.local_window))
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
+        shift = None
+        if self.motion is not None:
+            dx, dy, _ = self.motion.update(img)
+            shift = (dx, dy)
+            self.manager.shift(dx, dy)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         lap("associate")
@@ -113,8 +136,12 @@ class GEWCTracker:
         claimed = self.manager.claimed(preds, dets.xy)
         used = np.zeros(len(dets), dtype=bool)
         used[list(pairs.values())] = True
-        births = dets.xy[~used & ~claimed]
-        events = self.manager.update({i: (m.x, m.y) for i, m in meas.items()}, births)
+        born = ~used & ~claimed
+        sig = dets.significance
+        events = self.manager.update(
+            {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
+            scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
+            birth_scores=None if sig is None else sig[born])
         lap("kalman")
         timings["total"] = (time.perf_counter() - t_start) * 1e3
         return GEWCResult(
@@ -123,7 +150,7 @@ class GEWCTracker:
             circle=self.circle, mask=mask, mask_changed=mask_changed, horizon=horizon,
             horizon_updated=horizon_updated, suppressed=suppressed,
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
-            bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed,
+            bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed, camera_shift=shift,
         )
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,

@@ -1,0 +1,98 @@
+"""Time the feature-fusion tracker alone, per stage, on one core.
+
+Frames are rendered into memory first (decoding and rendering are not timed); the tracker is
+then run over them ``--runs`` times, a fresh tracker each run. For every frame and stage the
+median over the runs is kept; the table reports, over the frames, the median, mean and 95th
+percentile of each stage, for all frames and separately for the frames that searched only the
+windows and those that ran the global detection. Run from the repository root:
+
+    python benchmarks/bench_fusion.py                       # uniform-50hz, seed 0, 7 runs
+    python benchmarks/bench_fusion.py --scenario fov70-four-targets --runs 3
+    python benchmarks/bench_fusion.py --config my.toml      # a fusion config file
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load their thread pools
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wfviz.config import FusionConfig, load_config  # noqa: E402
+from wfviz.frames import Frame  # noqa: E402
+from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.trackers.fusion import FusionTracker  # noqa: E402
+
+STAGES = ["defects", "mask", "horizon", "windows", "suppress", "detect", "associate", "kalman", "total"]
+
+
+def run_once(frames: list[Frame], config: FusionConfig
+             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(frames, stages) ms per stage, (frames,) wall and CPU ms per step, (frames,) global flags."""
+    tracker = FusionTracker(config)
+    stages = np.zeros((len(frames), len(STAGES)))
+    wall = np.zeros(len(frames))
+    cpu = np.zeros(len(frames))
+    glob = np.zeros(len(frames), dtype=bool)
+    for i, f in enumerate(frames):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        r = tracker.step(f)
+        wall[i] = (time.perf_counter() - t0) * 1e3
+        cpu[i] = (time.thread_time() - c0) * 1e3
+        stages[i] = [r.timings.get(s, 0.0) for s in STAGES]
+        glob[i] = r.global_detection
+    return stages, wall, cpu, glob
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="uniform-50hz")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
+    ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--config", default=None, help="fusion TOML config (default: defaults)")
+    args = ap.parse_args()
+
+    cv2.setNumThreads(1)
+    config = load_config(args.config, FusionConfig)
+    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
+    frames = list(clip.frames())
+    h, w = frames[0].image.shape
+    run_once(frames[:20], config)  # warm-up (imports, allocator, caches)
+    results = [run_once(frames, config) for _ in range(args.runs)]
+    stages = np.median([r[0] for r in results], axis=0)
+    wall = np.median([r[1] for r in results], axis=0)
+    cpu = np.median([r[2] for r in results], axis=0)
+    glob = results[0][3]
+    if any((r[3] != glob).any() for r in results):
+        print("warning: runs differ in their global-detection frames")
+
+    print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "
+          f"({platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}); "
+          f"ms per frame, per-frame median over the runs")
+    print(f"global detection on {int(glob.sum())} of {len(frames)} frames")
+    groups = [("all frames", np.ones(len(frames), bool)), ("window frames", ~glob), ("global frames", glob)]
+    header = f"{'stage':11s}" + "".join(f" | {name + ' median/mean/p95':>30s}" for name, _ in groups)
+    print(header)
+    print("-" * len(header))
+    extra = {"step (wall)": wall, "step (CPU)": cpu}  # CPU time: robust when the machine is shared
+    for j, s in enumerate(STAGES + list(extra)):
+        col = extra[s] if s in extra else stages[:, j]
+        cells = []
+        for _, sel in groups:
+            v = col[sel]
+            cells.append(f"{np.median(v):8.3f} {np.mean(v):8.3f} {np.percentile(v, 95):8.3f}"
+                         if v.size else f"{'–':>26s}")
+        print(f"{s:11s}" + "".join(f" | {c:>30s}" for c in cells))
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,111 @@
+"""Time the star-field tracker alone, per stage, on one core.
+
+Frames are rendered into memory first (decoding and rendering are not timed); the tracker is
+then run over them ``--runs`` times, a fresh tracker each run. For every frame and stage the
+median over the runs is kept; the table reports, over the frames, the median, mean and 95th
+percentile of each stage. A second table splits the segmentation into its steps (timed by
+calling them directly on the same frames). Run from the repository root:
+
+    python benchmarks/bench_starfield.py                    # starfield, seed 0, 5 runs
+    python benchmarks/bench_starfield.py --seed 2 --runs 3
+    python benchmarks/bench_starfield.py --config my.toml   # a starfield config file
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load their thread pools
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wfviz.config import StarfieldConfig, load_config  # noqa: E402
+from wfviz.frames import Frame  # noqa: E402
+from wfviz.starfield import segmentation as seg  # noqa: E402
+from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402
+
+STAGES = ["segment", "register", "candidates", "chains", "resegment", "total"]
+PAPER_MS = 768.7  # the paper's mean per 1024x1024 frame (MATLAB-era, AMD dual core 2.3 GHz)
+
+
+def run_once(frames: list[Frame], config: StarfieldConfig) -> tuple[np.ndarray, np.ndarray]:
+    """(frames, stages) ms per stage and (frames,) wall ms per step."""
+    tracker = StarfieldTracker(config)
+    stages = np.zeros((len(frames), len(STAGES)))
+    wall = np.zeros(len(frames))
+    for i, f in enumerate(frames):
+        t0 = time.perf_counter()
+        r = tracker.step(f)
+        wall[i] = (time.perf_counter() - t0) * 1e3
+        stages[i] = [r.timings.get(s, 0.0) for s in STAGES]
+    return stages, wall
+
+
+def segmentation_steps(frames: list[Frame], config: StarfieldConfig, runs: int) -> dict[str, np.ndarray]:
+    """Median ms per frame of each segmentation step."""
+    c = config.segmentation
+    steps: dict[str, list[list[float]]] = {k: [] for k in ("background", "smooth + stats", "components")}
+    for _ in range(runs):
+        per = {k: [] for k in steps}
+        for f in frames:
+            t0 = time.perf_counter()
+            img = f.image.astype(np.float32)
+            residual = img - seg.estimate_background(img, c.background_block, c.background_sigma)
+            t1 = time.perf_counter()
+            smoothed = cv2.GaussianBlur(residual, (0, 0), c.smooth_sigma)
+            level, sigma = seg.robust_stats(smoothed)
+            binary = (smoothed > level + c.k_sigma * sigma).view(np.uint8)
+            t2 = time.perf_counter()
+            seg._components(binary, residual, smoothed, c.min_area, c.max_area, 0.0)
+            t3 = time.perf_counter()
+            per["background"].append((t1 - t0) * 1e3)
+            per["smooth + stats"].append((t2 - t1) * 1e3)
+            per["components"].append((t3 - t2) * 1e3)
+        for k in steps:
+            steps[k].append(per[k])
+    return {k: np.median(v, axis=0) for k, v in steps.items()}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="starfield")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--config", default=None, help="starfield TOML config (default: defaults)")
+    args = ap.parse_args()
+
+    cv2.setNumThreads(1)
+    config = load_config(args.config, StarfieldConfig)
+    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
+    frames = list(clip.frames())
+    h, w = frames[0].image.shape
+    run_once(frames[:8], config)  # warm-up (imports, allocator, caches)
+    results = [run_once(frames, config) for _ in range(args.runs)]
+    stages = np.median([r[0] for r in results], axis=0)
+    wall = np.median([r[1] for r in results], axis=0)
+
+    print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "
+          f"({platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}); "
+          f"ms per frame, per-frame median over the runs")
+    print(f"{'stage':16s} | {'median':>7s} {'mean':>7s} {'p95':>7s}")
+    rows = [(s, stages[:, i]) for i, s in enumerate(STAGES)] + [("step (wall)", wall)]
+    for name, v in rows:
+        print(f"{name:16s} | {np.median(v):7.2f} {np.mean(v):7.2f} {np.percentile(v, 95):7.2f}")
+    print(f"\nsegmentation steps (called directly, {len(frames)} frames):")
+    for name, v in segmentation_steps(frames, config, args.runs).items():
+        print(f"  {name:14s} | {np.median(v):7.2f} {np.mean(v):7.2f} {np.percentile(v, 95):7.2f}")
+    print(f"\nmedian {np.median(wall):.1f} ms per frame = {PAPER_MS / np.median(wall):.0f}x faster than the "
+          f"paper's {PAPER_MS} ms; budget 50 ms: {'met' if np.median(wall) <= 50 else 'NOT met'}")
+
+
+if __name__ == "__main__":
+    main()

@@ -1,0 +1,99 @@
+"""Rerun adapter for the feature-fusion tracker's own stages (see docs/recording.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from wfviz.record.recorder import DETECTION_COLOR, Recorder, track_color
+from wfviz.trackers.fusion import FusionResult
+
+MASK_COLOR = (255, 0, 255, 70)
+LOST_COLOR = (255, 80, 80, 200)
+
+
+class FusionRecorder(Recorder):
+    """Logs candidates' features, rectangles, measurements, Φ and matching cost per track,
+    global re-detections, residual, mask, horizon and Kalman scalars."""
+
+    def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
+        if not track_ids:
+            return rrb.Tabs(rrb.TimeSeriesView(origin="fusion", name="Fused feature Φ / cost"),
+                            rrb.TimeSeriesView(origin="kalman", name="Kalman"))
+        return rrb.Tabs(
+            rrb.TimeSeriesView(origin="fusion", name="Fused feature Φ",
+                               contents=[f"/fusion/{i}/phi" for i in track_ids]),
+            rrb.TimeSeriesView(origin="fusion", name="Matching cost",
+                               contents=[f"/fusion/{i}/cost" for i in track_ids]),
+            rrb.TimeSeriesView(origin="kalman", name="Kalman innovation (px)",
+                               contents=[f"/kalman/{i}/innovation" for i in track_ids]),
+            rrb.TimeSeriesView(origin="kalman", name="Kalman covariance trace",
+                               contents=[f"/kalman/{i}/cov_trace" for i in track_ids]),
+        )
+
+    def log_stages(self, result: FusionResult, images: bool) -> None:  # type: ignore[override]
+        rec = self.rec
+        self._log_geometry(result)
+        if images:
+            rec.log("suppressed/image", rr.Image(result.suppressed))
+        f, n = result.features, len(result.features)
+        phi = np.full(n, np.nan)
+        cost = np.full(n, np.nan)
+        for m in result.matches:
+            phi[m.detection], cost[m.detection] = m.phi, m.cost
+        # features on hover, next to the base's area / peak / flux
+        rec.log("camera/detections", rr.AnyValues(
+            grey=f.grey.astype(np.float64), phi=phi, cost=cost, track=result.assigned.astype(np.int64),
+            rect_width=np.linalg.norm(f.rects[:, 1] - f.rects[:, 0], axis=1) if n else np.zeros(0),
+            rect_height=np.linalg.norm(f.rects[:, 3] - f.rects[:, 0], axis=1) if n else np.zeros(0)))
+        colors = [track_color(int(t)) if t >= 0 else DETECTION_COLOR[:3] for t in result.assigned]
+        rec.log("camera/rects", rr.LineStrips2D(
+            [np.vstack([r, r[:1]]) for r in f.rects], colors=colors, radii=0.3))
+        m = result.matches
+        rec.log("camera/measurements", rr.Points2D(
+            [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],
+            colors=[track_color(x.track_id) for x in m], radii=0.5, show_labels=False))
+        a = np.linspace(0, 2 * np.pi, 73)
+        lost = result.lost if result.global_detection else ()
+        rec.log("camera/recovery", rr.LineStrips2D(
+            [np.column_stack([p.x + result.recover_radius * np.cos(a), p.y + result.recover_radius * np.sin(a)])
+             for p in lost], class_ids=[p.track_id for p in lost], colors=LOST_COLOR, radii=0.4))
+        rec.log("detection/global", rr.Scalars(1.0 if result.global_detection else 0.0))
+        if result.global_detection and not any(e.kind == "redetect" for e in result.events):
+            rec.log("log", rr.TextLog(f"global detection ({result.global_reason}): "
+                                      f"{len(result.detections)} candidates", level="DEBUG"))
+        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        for x in m:
+            if x.track_id in confirmed:
+                rec.log(f"fusion/{x.track_id}/phi", rr.Scalars(x.phi))
+                rec.log(f"fusion/{x.track_id}/cost", rr.Scalars(x.cost))
+        for tid, nu in result.innovations.items():
+            if tid in confirmed:
+                rec.log(f"kalman/{tid}/innovation", rr.Scalars(float(np.hypot(*nu))))
+        for p in result.predictions:
+            if p.confirmed:
+                rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))
+
+    def _log_geometry(self, result: FusionResult) -> None:
+        """Mask, imaging circle, horizon and bad pixels, as the GEWC adapter logs them."""
+        rec = self.rec
+        if result.mask_changed:
+            rec.log("camera/mask", rr.AnnotationContext([
+                rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
+                rr.ClassDescription(info=rr.AnnotationInfo(id=1, label="non-imaging", color=MASK_COLOR))]),
+                static=True)
+            rec.log("camera/mask", rr.SegmentationImage(result.mask.astype(np.uint8)), static=True)
+            c = result.circle
+            a = np.linspace(0, 2 * np.pi, 181)
+            rec.log("camera/imaging_circle", rr.LineStrips2D(
+                [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
+                labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3], radii=0.5), static=True)
+        if result.bad_pixels_changed:
+            hp = result.bad_pixels
+            rec.log("camera/bad_pixels", rr.Points2D(hp[:, ::-1].astype(np.float32) if len(hp) else np.zeros((0, 2)),
+                                                     colors=(255, 60, 60), radii=2.0))
+        if result.horizon_updated:
+            line = result.horizon.polyline() if result.horizon is not None else None
+            rec.log("camera/horizon", rr.LineStrips2D(
+                [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
