@@ -43,10 +43,11 @@ class FusionRecorder(Recorder):
         for m in result.matches:
             phi[m.detection], cost[m.detection] = m.phi, m.cost
         # features on hover, next to the base's area / peak / flux
-        rec.log("camera/detections", rr.AnyValues(
-            grey=f.grey.astype(np.float64), phi=phi, cost=cost, track=result.assigned.astype(np.int64),
-            rect_width=np.linalg.norm(f.rects[:, 1] - f.rects[:, 0], axis=1) if n else np.zeros(0),
-            rect_height=np.linalg.norm(f.rects[:, 3] - f.rects[:, 0], axis=1) if n else np.zeros(0)))
+        if n:  # an empty AnyValues batch only draws a warning
+            rec.log("camera/detections", rr.AnyValues(
+                grey=f.grey.astype(np.float64), phi=phi, cost=cost, track=result.assigned.astype(np.int64),
+                rect_width=np.linalg.norm(f.rects[:, 1] - f.rects[:, 0], axis=1),
+                rect_height=np.linalg.norm(f.rects[:, 3] - f.rects[:, 0], axis=1)))
         colors = [track_color(int(t)) if t >= 0 else DETECTION_COLOR[:3] for t in result.assigned]
         rec.log("camera/rects", rr.LineStrips2D(
             [np.vstack([r, r[:1]]) for r in f.rects], colors=colors, radii=0.3))
@@ -55,10 +56,11 @@ class FusionRecorder(Recorder):
             [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],
             colors=[track_color(x.track_id) for x in m], radii=0.5, show_labels=False))
         a = np.linspace(0, 2 * np.pi, 73)
+        r = result.recover_radius
         lost = result.lost if result.global_detection else ()
         rec.log("camera/recovery", rr.LineStrips2D(
-            [np.column_stack([p.x + result.recover_radius * np.cos(a), p.y + result.recover_radius * np.sin(a)])
-             for p in lost], class_ids=[p.track_id for p in lost], colors=LOST_COLOR, radii=0.4))
+            [np.column_stack([p.x + r * np.cos(a), p.y + r * np.sin(a)]) for p in lost],
+            class_ids=[p.track_id for p in lost], colors=LOST_COLOR, radii=0.4))
         rec.log("detection/global", rr.Scalars(1.0 if result.global_detection else 0.0))
         if result.global_detection and not any(e.kind == "redetect" for e in result.events):
             rec.log("log", rr.TextLog(f"global detection ({result.global_reason}): "

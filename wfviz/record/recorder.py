@@ -105,9 +105,12 @@ class Recorder:
     def _log_common(self, result: FrameResult) -> None:
         rec = self.rec
         d = result.detections
-        rec.log("camera/detections", rr.Points2D(
-            d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR),
-            rr.AnyValues(area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64)))
+        points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR)
+        if len(d):  # hover values; an empty AnyValues batch only draws a warning
+            rec.log("camera/detections", points, rr.AnyValues(
+                area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64)))
+        else:
+            rec.log("camera/detections", points)
         rec.log("detection/count", rr.Scalars(float(len(d))))
         rec.log("detection/threshold", rr.Scalars(float(d.threshold) if np.isfinite(d.threshold) else np.nan))
         self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])

@@ -54,10 +54,13 @@ class StarfieldRecorder(Recorder):
         if images:
             rec.log("suppressed/image", rr.Image(result.residual.astype(np.float16)))
         s = result.stars
-        rec.log("camera/stars", rr.Points2D(
-            s.xy, radii=np.sqrt(s.area / np.pi) + 0.5,
-            colors=[STAR_COLOR if p else UNPAIRED_COLOR for p in result.paired]),
-            rr.AnyValues(flux=s.flux.astype(np.float64), area=s.area, paired=result.paired))
+        stars = rr.Points2D(s.xy, radii=np.sqrt(s.area / np.pi) + 0.5,
+                            colors=[STAR_COLOR if p else UNPAIRED_COLOR for p in result.paired])
+        if len(s.xy):  # an empty AnyValues batch only draws a warning
+            rec.log("camera/stars", stars,
+                    rr.AnyValues(flux=s.flux.astype(np.float64), area=s.area, paired=result.paired))
+        else:
+            rec.log("camera/stars", stars)
         reg = result.registration
         ref = reg.reference_cur
         rec.log("camera/reference_stars", rr.Points2D(

@@ -38,8 +38,8 @@ from dataclasses import dataclass, field, replace
 
 import cv2
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 from scipy.ndimage import find_objects
+from scipy.optimize import linear_sum_assignment
 
 from wfviz.background import suppress_background
 from wfviz.config import FusionConfig
@@ -225,7 +225,8 @@ def min_area_rects(labels: np.ndarray, components: np.ndarray) -> tuple[np.ndarr
         lo, hi = np.searchsorted(lab, comp), np.searchsorted(lab, comp, side="right")
         sel = idx[lo:hi]
         if sel.size:
-            centres[i], corners[i] = min_area_rect((sel % w).astype(np.float64), (sel // w).astype(np.float64))
+            centres[i], corners[i] = min_area_rect((sel % w).astype(np.float64),
+                                                   (sel // w).astype(np.float64))
     return centres, corners
 
 

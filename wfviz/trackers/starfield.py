@@ -197,13 +197,13 @@ class StarfieldTracker:
             return Found((float(pu), float(pv)), None, None, None, math.nan)
         refs = []
         for f in sorted(self._stored, key=lambda f: abs(f - frame)):
+            if len(refs) >= rc.references:
+                break
             p = chain.at(f)
             if f == frame or p is None or math.hypot(p.x - pred[0], p.y - pred[1]) < rc.min_offset:
                 continue
             other = self._stored[f]
             refs.append((other.residual, (np.linalg.inv(other.to_ref) @ st.to_ref)[:2]))
-            if len(refs) == rc.references:
-                break
         r = resegment(st.residual, st.sigma, pu, pv, rc.window, rc.k_sigma, rc.radius, refs,
                       self.config.segmentation.smooth_sigma)
         window = (r.x0, r.y0, r.w, r.h)
