@@ -94,7 +94,8 @@ def test_log_tells_births_confirmations_and_meetings(demo_run):
 
 def test_demo_tracks_every_target_without_identity_swap(demo_run):
     cwd, _, _ = demo_run
-    rows = list(csv.DictReader(open(cwd / "recordings" / "demo-gewc.csv")))
+    with open(cwd / "recordings" / "demo-gewc.csv", newline="") as fh:
+        rows = list(csv.DictReader(fh))
     assert list(rows[0])[:5] == ["frame", "track_id", "x", "y", "confirmed"]
     tracks = read_points(cwd / "recordings" / "demo-gewc.csv", "track_id", confirmed_only=True)
     truth = read_points(cwd / "recordings" / "demo-gewc-truth.csv", "target_id")

@@ -21,7 +21,7 @@ from wfviz.clip import MIN_SIDE, ClipError, ClipWarning, open_clip
 from wfviz.config import ConfigError, GEWCConfig, config_from_dict, load_config
 from wfviz.frames import Frame
 from wfviz.run import min_frame_side, run
-from wfviz.trackers import make_tracker
+from wfviz.trackers import TRACKERS, make_tracker
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
@@ -205,9 +205,10 @@ def stacks(draw: st.DrawFn) -> np.ndarray:
     return stack
 
 
-@SETTINGS
-@given(stacks(), st.booleans())
-def test_random_frames_never_crash_the_pipeline(tmp_path_factory: pytest.TempPathFactory,
+@pytest.mark.parametrize("tracker", sorted(TRACKERS))
+@settings(SETTINGS, max_examples=25)
+@given(stack=stacks(), nan_as_zero=st.booleans())
+def test_random_frames_never_crash_the_pipeline(tmp_path_factory: pytest.TempPathFactory, tracker: str,
                                                 stack: np.ndarray, nan_as_zero: bool) -> None:
     folder = tmp_path_factory.mktemp("frames")
     np.save(folder / "s.npy", stack)
@@ -218,7 +219,7 @@ def test_random_frames_never_crash_the_pipeline(tmp_path_factory: pytest.TempPat
         with warnings.catch_warnings():
             warnings.simplefilter("ignore", ClipWarning)
             warnings.simplefilter("ignore", RuntimeWarning)  # |values| ~1e38 overflow float32 sums
-            summary = run(clip, make_tracker("gewc"), tracks_csv=folder / "t.csv")
+            summary = run(clip, make_tracker(tracker), tracks_csv=folder / "t.csv")
     except ClipError as exc:
         assert_clear(exc)
         if too_small:

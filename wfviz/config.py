@@ -54,7 +54,7 @@ class HorizonConfig:
 
 @dataclass(frozen=True)
 class DefectsConfig:
-    """Hot pixels: persistent one-pixel spikes, flagged and replaced by their 3x3 median."""
+    """Hot and dead pixels: persistent one-pixel outliers, flagged and replaced by their 3x3 median."""
 
     enabled: bool = True
     spike_ratio: float = field(default=0.8, metadata=_range(0.0, 1.0))
@@ -310,7 +310,9 @@ class TBDModelConfig:
     amplitude_min: float = field(default=1.0, metadata=_range(0.0, None))
     amplitude_walk: float = field(default=0.1, metadata=_range(0.0, None))
     background: str = field(default="auto", metadata={"choices": ("auto", "global", "local")})
-    background_window: int = field(default=31, metadata=_range(5, 255))
+    background_window: int = field(default=9, metadata=_range(3, 255))
+    noise_window: int = field(default=31, metadata=_range(5, 255))
+    remove_spikes: bool = True
 
 
 @dataclass(frozen=True)
@@ -321,8 +323,8 @@ class TBDFilterConfig:
     birth_particles: int = field(default=500, metadata=_range(1, None))
     continuation_particles: int = field(default=1000, metadata=_range(1, None))
     death_particles: int = field(default=250, metadata=_range(1, None))
-    p_birth: float = field(default=0.05, metadata=_range(0.0, 0.5))
-    p_death: float = field(default=0.05, metadata=_range(0.0, 0.5))
+    p_birth: float = field(default=0.01, metadata=_range(0.0, 0.5))
+    p_death: float = field(default=0.1, metadata=_range(0.0, 0.5))
     birth_uniform: float = field(default=0.2, metadata=_range(0.0, 1.0))
     seed: int = field(default=0, metadata=_range(0, None))
 
@@ -339,6 +341,7 @@ class TBDRegionConfig:
     max_windows: int = field(default=8, metadata=_range(1, 256))
     candidate_k: float = field(default=4.5, metadata=_range(0.0, None))
     candidate_memory: float = field(default=0.3, metadata=_range(0.01, 1.0))
+    clutter_max: float = field(default=1.5, metadata=_range(1.0, None))
     close_p0: float = field(default=0.9, metadata=_range(0.0, 1.0))
     close_after: int = field(default=5, metadata=_range(1, None))
 

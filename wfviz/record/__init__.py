@@ -8,9 +8,10 @@ from wfviz.record.fusion import FusionRecorder
 from wfviz.record.gewc import GEWCRecorder
 from wfviz.record.recorder import Recorder, track_color
 from wfviz.record.starfield import StarfieldRecorder
+from wfviz.record.tbd import TBDRecorder
 
 RECORDERS: dict[str, type[Recorder]] = {"gewc": GEWCRecorder, "fusion": FusionRecorder,
-                                         "starfield": StarfieldRecorder}
+                                         "starfield": StarfieldRecorder, "tbd": TBDRecorder}
 
 
 def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:

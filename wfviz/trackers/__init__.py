@@ -6,16 +6,18 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from wfviz.config import FusionConfig, GEWCConfig, StarfieldConfig, load_config
+from wfviz.config import FusionConfig, GEWCConfig, StarfieldConfig, TBDConfig, load_config
 from wfviz.trackers.base import FrameResult, Tracker
 from wfviz.trackers.fusion import FusionTracker
 from wfviz.trackers.gewc import GEWCTracker
 from wfviz.trackers.starfield import StarfieldTracker
+from wfviz.trackers.tbd import TBDTracker
 
 # name -> (tracker class, config class)
 TRACKERS: dict[str, tuple[type, type]] = {"gewc": (GEWCTracker, GEWCConfig),
                                           "fusion": (FusionTracker, FusionConfig),
-                                          "starfield": (StarfieldTracker, StarfieldConfig)}
+                                          "starfield": (StarfieldTracker, StarfieldConfig),
+                                          "tbd": (TBDTracker, TBDConfig)}
 
 
 def _entry(name: str) -> tuple[type, type]:
@@ -41,6 +43,6 @@ def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
     return make_tracker(name, load_config(config_file, config_class(name)))
 
 
-__all__ = ["TRACKERS", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "Tracker", "config_class",
+__all__ = ["TRACKERS", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "TBDTracker", "Tracker", "config_class",
            "load_tracker",
            "make_tracker"]

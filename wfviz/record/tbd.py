@@ -1,0 +1,93 @@
+"""Rerun adapter for the track-before-detect tracker's own stages (see docs/recording.md)."""
+
+from __future__ import annotations
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from wfviz.record.recorder import Recorder
+from wfviz.trackers.tbd import TBDResult
+
+# particle colour by hypothesis n (PF_n); index 0 unused (PF_0 has no target)
+HYPOTHESIS_COLORS = ((0, 0, 0, 0), (0, 220, 255, 110), (255, 80, 220, 110), (255, 230, 0, 110),
+                     (120, 255, 120, 110), (255, 140, 0, 110), (200, 200, 255, 110))
+REGION_COLORS = {"tile": (120, 120, 255, 120), "window": (0, 200, 255, 160), "full": (0, 0, 0, 0)}
+
+
+class TBDRecorder(Recorder):
+    """Logs the particles of every PF_n, the posterior of the target count, the normalised
+    frame, the regions (tiles or candidate windows), noise sigma and per-track amplitude."""
+
+    def __init__(self, *args: object, **kwargs: object) -> None:
+        super().__init__(*args, **kwargs)  # type: ignore[arg-type]
+        self._counts_logged = 0
+        self._regions_logged = False
+
+    def blueprint(self, track_ids: list[int] | None = None) -> rrb.Blueprint:
+        """The common layout, with the particles over the raw and the normalised frames."""
+        return rrb.Blueprint(
+            rrb.Horizontal(
+                rrb.Vertical(
+                    rrb.Spatial2DView(origin="camera", name="Camera + particles",
+                                      contents=["$origin/**", "/tbd/particles"]),
+                    rrb.Spatial2DView(origin="suppressed", name="Normalised frame (z - b) / sigma",
+                                      contents=["$origin/**", "/tbd/particles", "/camera/predictions",
+                                                "/camera/gates", "/camera/truth", "/camera/regions"]),
+                ),
+                rrb.Vertical(
+                    rrb.Tabs(rrb.TimeSeriesView(origin="tbd/p_count", name="P(target count)"),
+                             rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
+                             rrb.TimeSeriesView(origin="eval", name="Errors vs truth")),
+                    self.track_views(track_ids),
+                    rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
+                                 filter_by_log_level=["INFO", "WARN", "ERROR"])),
+                             rrb.TextDocumentView(origin="config", name="Config"),
+                             rrb.TextDocumentView(origin="eval/summary", name="Scores")),
+                ),
+                column_shares=[3, 2],
+            ),
+            rrb.BlueprintPanel(state="collapsed"),
+            rrb.SelectionPanel(state="collapsed"),
+            rrb.TimePanel(timeline="frame", state="collapsed"),
+        )
+
+    def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
+        views = [rrb.TimeSeriesView(origin="tbd", name="Count estimate / noise sigma",
+                                    contents=["/tbd/count", "/tbd/noise_sigma"])]
+        if track_ids:
+            views += [rrb.TimeSeriesView(origin="tbd", name="Amplitude (peak SNR)",
+                                         contents=[f"/tbd/{i}/amplitude" for i in track_ids]),
+                      rrb.TimeSeriesView(origin="tbd", name="Position std (px)",
+                                         contents=[f"/tbd/{i}/position_std" for i in track_ids])]
+        return rrb.Tabs(*views)
+
+    def log_stages(self, result: TBDResult, images: bool) -> None:  # type: ignore[override]
+        rec = self.rec
+        if images:
+            rec.log("suppressed/image", rr.Image(result.normalised.astype(np.float16)))
+        pts = result.particles
+        hyp = pts[:, 2].astype(np.int64)
+        colors = np.array(HYPOTHESIS_COLORS, dtype=np.uint8)[np.clip(hyp, 0, len(HYPOTHESIS_COLORS) - 1)]
+        rec.log("tbd/particles", rr.Points2D(pts[:, :2], colors=colors, radii=0.25),
+                rr.AnyValues(hypothesis=hyp))
+        p = result.p_count
+        n_log = max(len(p), self._counts_logged)
+        for n in range(n_log):
+            rec.log(f"tbd/p_count/{n}", rr.Scalars(float(p[n]) if n < len(p) else 0.0))
+        self._counts_logged = n_log
+        rec.log("tbd/count", rr.Scalars(float(result.count)))
+        rec.log("tbd/noise_sigma", rr.Scalars(float(result.noise_sigma)))
+        regions = [r for r in result.regions if r.kind != "full"]
+        if regions or self._regions_logged:
+            rec.log("camera/regions", rr.Boxes2D(
+                centers=[[r.x0 + (r.width - 1) / 2, r.y0 + (r.height - 1) / 2] for r in regions] or np.zeros((0, 2)),
+                half_sizes=[[r.width / 2, r.height / 2] for r in regions] or np.zeros((0, 2)),
+                colors=[REGION_COLORS[r.kind] for r in regions] or None, radii=0.3,
+                labels=[f"R{r.region_id} n={r.count}" for r in regions] or None, show_labels=False))
+            self._regions_logged = True
+        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        for tid, amp in result.amplitudes.items():
+            if tid in confirmed:
+                rec.log(f"tbd/{tid}/amplitude", rr.Scalars(float(amp)))
+                rec.log(f"tbd/{tid}/position_std", rr.Scalars(float(result.position_std[tid])))

@@ -1,0 +1,360 @@
+"""Multi-target particle-filter track-before-detect tracker (``--tracker tbd``).
+
+Per frame: normalise the frame (background and noise sigma from the data), choose the regions
+(the whole frame, fixed tiles, or windows around candidates of a temporally integrated matched
+filter), run each region's bank of particle filters PF_0..PF_N_max (:mod:`wfviz.tbd.filter`),
+then turn the estimated states of the most probable count into tracks with stable ids.
+The equations are in docs/pipeline.md ("The track-before-detect tracker").
+"""
+
+from __future__ import annotations
+
+import math
+import time
+from dataclasses import dataclass, field
+
+import cv2
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+from wfviz.config import TBDConfig
+from wfviz.detection import Detections
+from wfviz.frames import Frame
+from wfviz.tbd.filter import BankOutput, RegionFilter
+from wfviz.tbd.model import matched_filter, normalise
+from wfviz.trackers.base import FrameResult
+from wfviz.tracking import Prediction, TrackEvent, TrackState
+
+STAGES = ("normalise", "candidates", "predict", "likelihood", "count", "estimate", "resample", "tracks")
+MAX_LOGGED_COUNT = 9  # the total-count posterior is reported for n = 0..9 (the last bin: n >= 9)
+
+
+@dataclass(frozen=True)
+class Region:
+    """A rectangle of the frame with its own filter bank: (x0, y0) top-left pixel, size, kind
+    (``full``, ``tile`` or ``window``), its id and this frame's count estimate and P(n = 0)."""
+
+    region_id: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+    kind: str
+    count: int
+    p0: float
+
+
+@dataclass(frozen=True)
+class TBDResult(FrameResult):
+    """Every stage's output for one frame (the common fields come from FrameResult).
+
+    ``p_count`` is the posterior of the number of targets in the frame (index n; with several
+    regions, the convolution of the regions' posteriors, the last bin holding n >= 9);
+    ``count`` the estimate (sum over regions of each region's most probable n);
+    ``particles`` (K, 3) rows (x, y, n): resampled posterior particles of every PF_n,
+    subsampled; ``normalised`` the frame (z - b) / sigma; ``amplitudes`` the estimated peak
+    SNR of each reported track."""
+
+    p_count: np.ndarray
+    count: int
+    count_changed: bool
+    particles: np.ndarray
+    regions: tuple[Region, ...]
+    normalised: np.ndarray
+    noise_sigma: float
+    amplitudes: dict[int, float]
+    position_std: dict[int, float]
+
+
+@dataclass
+class _Bank:
+    region_id: int
+    x0: int
+    y0: int
+    width: int
+    height: int
+    kind: str
+    filter: RegionFilter
+    quiet: int = 0  # consecutive frames with P(n = 0) >= close_p0
+    last: BankOutput | None = None
+
+
+@dataclass
+class _Track:
+    track_id: int
+    x: float
+    y: float
+    vx: float
+    vy: float
+    last_frame: int
+    hits: int = 0
+    confirmed: bool = False
+    ever_confirmed: bool = False
+    history: list = field(default_factory=list)
+
+
+def empty_detections(shape: tuple[int, int], threshold: float = float("nan")) -> Detections:
+    """A :class:`Detections` with no component (track-before-detect thresholds nothing)."""
+    z = np.zeros(0)
+    zi = np.zeros(0, dtype=np.int64)
+    return Detections(np.zeros((0, 2)), zi, z, z, np.zeros((0, 4), dtype=np.int64), zi,
+                      np.zeros(shape, dtype=np.int32), threshold)
+
+
+class TBDTracker:
+    """Streams frames through the track-before-detect filters; ``step`` returns a :class:`TBDResult`."""
+
+    name = "tbd"
+
+    def __init__(self, config: TBDConfig | None = None) -> None:
+        self.config = config or TBDConfig()
+        self.rng = np.random.Generator(np.random.PCG64(self.config.filter.seed))
+        self.banks: list[_Bank] = []
+        self._mode: str | None = None
+        self._shape: tuple[int, int] | None = None
+        self._ema: np.ndarray | None = None
+        self._cooldown: list[tuple[int, int, int, int, int]] = []  # closed windows: x0, y0, w, h, until
+        self._next_region = 1
+        self._tracks: dict[int, _Track] = {}
+        self._next_id = 1
+        self._count = 0
+
+    # -- regions ------------------------------------------------------------------------------
+    def _setup(self, shape: tuple[int, int]) -> None:
+        rc = self.config.regions
+        rows, cols = shape
+        mode = rc.mode
+        if mode == "auto":
+            mode = "full" if rows * cols <= rc.full_max_pixels else "candidates"
+        self._mode, self._shape = mode, shape
+        self.banks = []
+        if mode == "full":
+            self._add_bank(0, 0, cols, rows, "full")
+        elif mode == "tiles":
+            for y0 in _starts(rows, rc.tile, rc.tile_overlap):
+                for x0 in _starts(cols, rc.tile, rc.tile_overlap):
+                    self._add_bank(x0, y0, min(rc.tile, cols), min(rc.tile, rows), "tile")
+
+    def _add_bank(self, x0: int, y0: int, w: int, h: int, kind: str) -> _Bank:
+        bank = _Bank(self._next_region, x0, y0, w, h, kind, RegionFilter(self.config, (h, w), self.rng))
+        self._next_region += 1
+        self.banks.append(bank)
+        return bank
+
+    def _background(self) -> str:
+        m = self.config.model.background
+        if m != "auto":
+            return m
+        return "global" if self._mode == "full" else "local"
+
+    def _candidates(self, t: np.ndarray, texture: np.ndarray | None, index: int
+                    ) -> tuple[np.ndarray, np.ndarray]:
+        """Windows mode: temporally integrated matched filter u (an EMA of t scaled to unit
+        noise std), its local maxima above ``regions.candidate_k`` where the local texture is
+        at most ``regions.clutter_max`` (clouds and ground excluded); opens windows on new ones
+        and closes windows whose P(n = 0) stayed high. Returns candidate (x, y) and scores."""
+        rc = self.config.regions
+        a = rc.candidate_memory
+        self._ema = a * t if self._ema is None else (1.0 - a) * self._ema + a * t
+        u = self._ema / math.sqrt(a / (2.0 - a))
+        peaks = (u >= cv2.dilate(u, np.ones((3, 3), np.uint8))) & (u > rc.candidate_k)
+        if texture is not None:
+            peaks &= texture <= rc.clutter_max
+        ys, xs = np.nonzero(peaks)
+        score = u[ys, xs]
+        order = np.argsort(-score, kind="stable")
+        xs, ys, score = xs[order], ys[order], score[order]
+        # close quiet windows (their targets left or were noise)
+        keep = []
+        for b in self.banks:
+            if b.quiet >= rc.close_after:
+                self._cooldown.append((b.x0, b.y0, b.width, b.height, index + rc.close_after))
+            else:
+                keep.append(b)
+        self.banks = keep
+        self._cooldown = [c for c in self._cooldown if c[4] > index]
+        rows, cols = t.shape
+        w, h = min(rc.window, cols), min(rc.window, rows)
+        margin = self.config.model.patch_radius + 2
+        for x, y in zip(xs, ys):
+            if len(self.banks) >= rc.max_windows:
+                break
+            if any(b.x0 + margin <= x < b.x0 + b.width - margin and b.y0 + margin <= y < b.y0 + b.height - margin
+                   for b in self.banks):
+                continue
+            if any(c[0] <= x < c[0] + c[2] and c[1] <= y < c[1] + c[3] for c in self._cooldown):
+                continue
+            x0 = int(min(max(x - w // 2, 0), cols - w))
+            y0 = int(min(max(y - h // 2, 0), rows - h))
+            self._add_bank(x0, y0, w, h, "window")
+        return np.column_stack([xs, ys]).astype(np.float64), score
+
+    # -- one frame ----------------------------------------------------------------------------
+    def step(self, frame: Frame) -> TBDResult:
+        """Run every stage on one frame."""
+        c = self.config
+        img = frame.image
+        if img.ndim == 3:
+            img = img.mean(axis=2)
+        timings = {s: 0.0 for s in STAGES}
+        t_start = time.perf_counter()
+        if self._shape != img.shape:
+            self._setup(img.shape)
+        y, sigma, texture = normalise(img, self._background(), c.model.background_window,
+                                      c.model.remove_spikes, c.model.noise_window)
+        t = matched_filter(y, c.model.psf_sigma, c.model.patch_radius)
+        t1 = time.perf_counter()
+        timings["normalise"] = (t1 - t_start) * 1e3
+        dets = empty_detections(img.shape)
+        if self._mode == "candidates":
+            xy, score = self._candidates(t, texture, frame.index)
+            n = len(xy)
+            dets = Detections(xy, np.ones(n, dtype=np.int64), score, t[xy[:, 1].astype(int), xy[:, 0].astype(int)]
+                              if n else np.zeros(0), np.column_stack([xy - 1, np.full((n, 2), 3)]).astype(np.int64),
+                              np.arange(1, n + 1), dets.labels, float(c.regions.candidate_k))
+        timings["candidates"] = (time.perf_counter() - t1) * 1e3
+
+        estimates: list[tuple] = []  # x, y, vx, vy, amplitude, std_x, std_y, confirmed, region
+        particles = []
+        p_total = np.ones(1)
+        count = 0
+        for b in self.banks:
+            ys, xs = slice(b.y0, b.y0 + b.height), slice(b.x0, b.x0 + b.width)
+            out = b.filter.step(np.ascontiguousarray(y[ys, xs]), t[ys, xs], timings)
+            b.last = out
+            p = out.p
+            b.quiet = b.quiet + 1 if p[0] >= c.regions.close_p0 else 0
+            p_total = _convolve(p_total, p)
+            n = out.count
+            count += n
+            for e_n, confirmed in self._reported(b, out, n):
+                for j in e_n:
+                    estimates.append((*j, confirmed, b.region_id))
+            if len(out.particles):
+                pts = out.particles.copy()
+                pts[:, [0, 1]] = pts[:, [1, 0]]
+                pts[:, 0] += b.x0
+                pts[:, 1] += b.y0
+                particles.append(pts)
+        t2 = time.perf_counter()
+        tracks, preds, events, amps, stds = self._associate(frame.index, estimates, c)
+        changed = count != self._count
+        if changed:
+            pc = float(p_total[min(count, len(p_total) - 1)])
+            events.append(TrackEvent(frame.index, "count", -1,
+                                     f"target count estimate {self._count} -> {count} (P = {pc:.2f})"))
+        self._count = count
+        timings["tracks"] = (time.perf_counter() - t2) * 1e3
+        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        regions = tuple(Region(b.region_id, b.x0, b.y0, b.width, b.height, b.kind,
+                               b.last.count if b.last else 0, float(b.last.p[0]) if b.last else 1.0)
+                        for b in self.banks)
+        return TBDResult(
+            index=frame.index, time=frame.time, tracks=tuple(tracks), predictions=tuple(preds),
+            detections=dets, events=tuple(events), timings=timings, p_count=p_total, count=count,
+            count_changed=changed, particles=np.concatenate(particles) if particles else np.zeros((0, 3)),
+            regions=regions, normalised=y, noise_sigma=sigma, amplitudes=amps, position_std=stds)
+
+    def _reported(self, b: _Bank, out: BankOutput, n: int) -> list[tuple[list[tuple], bool]]:
+        """Frame-coordinate rows of PF_n (confirmed) and, when P(n + 1) >= tentative_p, the
+        target of PF_n+1 farthest from PF_n's (tentative), if it is localised (position std
+        within ``tracking.id_gate``)."""
+        rows = []
+
+        def conv(e, j):  # noqa: ANN001
+            s = e.state[j]
+            return (s[2] + b.x0, s[0] + b.y0, s[3], s[1], float(e.amplitude[j]), e.std[j, 1], e.std[j, 0])
+
+        est = out.estimates[n]
+        rows.append(([conv(est, j) for j in range(n)], True))
+        p = out.p
+        tp = self.config.tracking.tentative_p
+        if n + 1 < len(p) and p[n + 1] >= tp and tp > 0:
+            nxt = out.estimates[n + 1]
+            j = 0
+            if n > 0:
+                d = np.linalg.norm(nxt.state[:, None, [0, 2]] - est.state[None, :, [0, 2]], axis=-1)
+                j = int(np.argmax(d.min(axis=1)))
+            if float(np.hypot(*nxt.std[j])) <= self.config.tracking.id_gate:
+                rows.append(([conv(nxt, j)], False))
+        return rows
+
+    # -- track ids ----------------------------------------------------------------------------
+    def _associate(self, index: int, estimates: list[tuple], c: TBDConfig
+                   ) -> tuple[list[TrackState], list[Prediction], list[TrackEvent], dict, dict]:
+        """Stable ids: estimates are assigned (Hungarian, distance <= ``tracking.id_gate``) to
+        the tracks' predicted positions (last estimate + velocity x frames since); duplicates
+        from overlapping regions (closer than ``merge_distance``) are merged, confirmed first."""
+        tc = c.tracking
+        est = sorted(estimates, key=lambda e: (not e[7], e[8]))  # confirmed first, then region
+        kept: list[tuple] = []
+        for e in est:
+            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance for k in kept):
+                kept.append(e)
+        live = [tr for tr in self._tracks.values() if index - tr.last_frame <= tc.id_memory + 1]
+        events: list[TrackEvent] = []
+        pairs: dict[int, _Track] = {}
+        if kept and live:
+            cost = np.full((len(kept), len(live)), 1e6)
+            for i, e in enumerate(kept):
+                for j, tr in enumerate(live):
+                    dt = index - tr.last_frame
+                    d = math.hypot(e[0] - (tr.x + tr.vx * dt), e[1] - (tr.y + tr.vy * dt))
+                    if d <= tc.id_gate:
+                        cost[i, j] = d
+            ri, ci = linear_sum_assignment(cost)
+            for i, j in zip(ri, ci):
+                if cost[i, j] < 1e6:
+                    pairs[i] = live[j]
+        tracks, preds, amps, stds = [], [], {}, {}
+        for i, e in enumerate(kept):
+            x, y_, vx, vy, amp, sx, sy, confirmed, _ = e
+            tr = pairs.get(i)
+            if tr is None:
+                tr = _Track(self._next_id, x, y_, vx, vy, index)
+                self._tracks[tr.track_id] = tr
+                self._next_id += 1
+                events.append(TrackEvent(index, "born", tr.track_id,
+                                         f"track {tr.track_id} tentative target at ({x:.1f}, {y_:.1f})"
+                                         if not confirmed else
+                                         f"track {tr.track_id} started at ({x:.1f}, {y_:.1f})"))
+            tr.x, tr.y, tr.vx, tr.vy, tr.last_frame = x, y_, vx, vy, index
+            tr.hits += 1
+            tr.confirmed = bool(confirmed)
+            if confirmed and not tr.ever_confirmed:
+                tr.ever_confirmed = True
+                events.append(TrackEvent(index, "confirmed", tr.track_id,
+                                         f"track {tr.track_id} confirmed: the count estimate includes it "
+                                         f"(amplitude {amp:.1f} sigma)"))
+            tracks.append(TrackState(tr.track_id, x, y_, vx, vy, tr.confirmed, False, tr.hits, 0))
+            preds.append(Prediction(tr.track_id, x, y_, max(2.0 * sx, 0.5), max(2.0 * sy, 0.5),
+                                    tr.confirmed, False, float(sx * sx + sy * sy)))
+            amps[tr.track_id] = amp
+            stds[tr.track_id] = float(math.hypot(sx, sy))
+        for tid in list(self._tracks):
+            tr = self._tracks[tid]
+            if index - tr.last_frame > tc.id_memory:
+                del self._tracks[tid]
+                events.append(TrackEvent(index, "deleted", tid,
+                                         f"track {tid} deleted: not in the estimate for "
+                                         f"{index - tr.last_frame} frames"))
+        return tracks, preds, events, amps, stds
+
+
+def _starts(size: int, tile: int, overlap: int) -> list[int]:
+    """Tile origins covering ``size`` with ``tile``-long tiles overlapping by ``overlap``."""
+    if size <= tile:
+        return [0]
+    step = tile - overlap
+    starts = list(range(0, size - tile + 1, step))
+    if starts[-1] + tile < size:
+        starts.append(size - tile)
+    return starts
+
+
+def _convolve(p: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Posterior of the sum of two independent counts, the tail folded into bin MAX_LOGGED_COUNT."""
+    r = np.convolve(p, q)
+    if len(r) > MAX_LOGGED_COUNT + 1:
+        r = np.concatenate([r[:MAX_LOGGED_COUNT], [r[MAX_LOGGED_COUNT:].sum()]])
+    return r
