@@ -63,12 +63,8 @@ def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, wi
     return mean + k_sigma * std
 
 
-def _component_stats(labels: np.ndarray, n: int) -> np.ndarray:
-    """cv2-style stats (x, y, width, height, area) of labels 0..n-1 over their own pixels."""
-    idx = np.flatnonzero(labels)
-    lab = labels.ravel()[idx]
-    w = labels.shape[1]
-    xs, ys = idx % w, idx // w
+def _component_stats(lab: np.ndarray, xs: np.ndarray, ys: np.ndarray, n: int) -> np.ndarray:
+    """cv2-style stats (x, y, width, height, area) of labels 0..n-1 from their pixels (lab, xs, ys)."""
     stats = np.zeros((n, 5), dtype=np.int64)
     big = np.iinfo(np.int64).max
     x0, y0 = np.full(n, big), np.full(n, big)
@@ -118,20 +114,23 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         thr_map = None
         thr = adaptive_threshold(residual, region, cfg.k_sigma)
         excess = res - thr
-    binary = ((excess > 0) & region).astype(np.uint8)
+    mask = (excess > 0) & region
+    binary = mask.view(np.uint8)
+    # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
         k = 2 * cfg.merge_gap + 1
         grown = cv2.dilate(binary, np.ones((k, k), np.uint8))
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(grown, connectivity=8, ltype=cv2.CV_32S)
-        labels[binary == 0] = 0
-        stats = _component_stats(labels, n)
+        n, labels = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
+        labels *= binary  # keep labels on the pixels above threshold only
     else:
-        n, labels, stats, _ = cv2.connectedComponentsWithStats(binary, connectivity=8, ltype=cv2.CV_32S)
-    idx = np.flatnonzero(binary)
+        n, labels = cv2.connectedComponents(binary, connectivity=8, ltype=cv2.CV_32S)
+    idx = np.nonzero(mask.ravel())[0]
     lab = labels.ravel()[idx]
     val = excess.ravel()[idx]
     w = residual.shape[1]
-    xs, ys = (idx % w).astype(np.float64), (idx // w).astype(np.float64)
+    ix, iy = idx % w, idx // w
+    stats = _component_stats(lab, ix, iy, n)
+    xs, ys = ix.astype(np.float64), iy.astype(np.float64)
     flux = np.bincount(lab, weights=val, minlength=n)[1:]
     total = np.bincount(lab, weights=res.ravel()[idx], minlength=n)[1:]
     safe = np.where(flux > 0, flux, 1.0)

@@ -75,6 +75,7 @@ class _Bank:
     height: int
     kind: str
     filter: RegionFilter
+    born: int = 0  # frame index of its first frame
     quiet: int = 0  # consecutive frames with P(n = 0) >= close_p0
     last: BankOutput | None = None
 
@@ -135,8 +136,8 @@ class TBDTracker:
                 for x0 in _starts(cols, rc.tile, rc.tile_overlap):
                     self._add_bank(x0, y0, min(rc.tile, cols), min(rc.tile, rows), "tile")
 
-    def _add_bank(self, x0: int, y0: int, w: int, h: int, kind: str) -> _Bank:
-        bank = _Bank(self._next_region, x0, y0, w, h, kind, RegionFilter(self.config, (h, w), self.rng))
+    def _add_bank(self, x0: int, y0: int, w: int, h: int, kind: str, born: int = 0) -> _Bank:
+        bank = _Bank(self._next_region, x0, y0, w, h, kind, RegionFilter(self.config, (h, w), self.rng), born)
         self._next_region += 1
         self.banks.append(bank)
         return bank
@@ -176,17 +177,34 @@ class TBDTracker:
         rows, cols = t.shape
         w, h = min(rc.window, cols), min(rc.window, rows)
         margin = self.config.model.patch_radius + 2
-        for x, y in zip(xs, ys):
-            if len(self.banks) >= rc.max_windows:
-                break
+        # support of a window: its best candidate this frame (0 if none)
+        support = {b.region_id: 0.0 for b in self.banks}
+        for b in self.banks:
+            inside = (xs >= b.x0) & (xs < b.x0 + b.width) & (ys >= b.y0) & (ys < b.y0 + b.height)
+            if inside.any():
+                support[b.region_id] = float(score[inside].max())
+        for x, y, sc in zip(xs, ys, score):
             if any(b.x0 + margin <= x < b.x0 + b.width - margin and b.y0 + margin <= y < b.y0 + b.height - margin
                    for b in self.banks):
                 continue
             if any(c[0] <= x < c[0] + c[2] and c[1] <= y < c[1] + c[3] for c in self._cooldown):
                 continue
+            if len(self.banks) >= rc.max_windows:
+                # full: replace the least supported window that has run for close_after frames,
+                # if this candidate is at least 1.5 times stronger
+                old = [b for b in self.banks if index - b.born >= rc.close_after]
+                if not old:
+                    break
+                weakest = min(old, key=lambda b: support[b.region_id])
+                if sc < 1.5 * support[weakest.region_id]:
+                    break
+                self.banks.remove(weakest)
+                self._cooldown.append((weakest.x0, weakest.y0, weakest.width, weakest.height,
+                                       index + rc.close_after))
             x0 = int(min(max(x - w // 2, 0), cols - w))
             y0 = int(min(max(y - h // 2, 0), rows - h))
-            self._add_bank(x0, y0, w, h, "window")
+            bank = self._add_bank(x0, y0, w, h, "window", index)
+            support[bank.region_id] = float(sc)
         return np.column_stack([xs, ys]).astype(np.float64), score
 
     # -- one frame ----------------------------------------------------------------------------
