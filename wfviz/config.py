@@ -304,7 +304,7 @@ class TBDModelConfig:
     psf_sigma: float = field(default=0.8, metadata=_range(0.3, 5.0))
     patch_radius: int = field(default=2, metadata=_range(1, 8))
     process_noise: float = field(default=0.05, metadata=_range(0.0, 5.0))
-    max_speed: float = field(default=1.0, metadata=_range(0.0, 20.0))
+    max_speed: float | None = field(default=None, metadata=_range(0.0, 20.0))
     amplitude_mean: float = field(default=4.0, metadata=_range(0.0, None))
     amplitude_std: float = field(default=3.0, metadata=_range(0.1, None))
     amplitude_min: float = field(default=1.0, metadata=_range(0.0, None))

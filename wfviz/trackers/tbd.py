@@ -137,10 +137,19 @@ class TBDTracker:
                     self._add_bank(x0, y0, min(rc.tile, cols), min(rc.tile, rows), "tile")
 
     def _add_bank(self, x0: int, y0: int, w: int, h: int, kind: str, born: int = 0) -> _Bank:
-        bank = _Bank(self._next_region, x0, y0, w, h, kind, RegionFilter(self.config, (h, w), self.rng), born)
+        bank = _Bank(self._next_region, x0, y0, w, h, kind, RegionFilter(self.config, (h, w), self.rng,
+                                                                       self._max_speed()), born)
         self._next_region += 1
         self.banks.append(bank)
         return bank
+
+    def _max_speed(self) -> float:
+        """``model.max_speed``, or when "auto" 1 px/frame on small frames (the paper's sub-pixel
+        targets) and 3 px/frame over tiles and windows (wide-field targets are faster)."""
+        ms = self.config.model.max_speed
+        if ms is not None:
+            return float(ms)
+        return 1.0 if self._mode == "full" else 3.0
 
     def _background(self) -> str:
         m = self.config.model.background
@@ -301,13 +310,15 @@ class TBDTracker:
     def _associate(self, index: int, estimates: list[tuple], c: TBDConfig
                    ) -> tuple[list[TrackState], list[Prediction], list[TrackEvent], dict, dict]:
         """Stable ids: estimates are assigned (Hungarian, distance <= ``tracking.id_gate``) to
-        the tracks' predicted positions (last estimate + velocity x frames since); duplicates
-        from overlapping regions (closer than ``merge_distance``) are merged, confirmed first."""
+        the tracks' predicted positions (last estimate + velocity x frames since). Duplicates
+        (closer than ``merge_distance``) from overlapping regions, or a tentative target on a
+        confirmed one, are merged: confirmed first, then the older region's."""
         tc = c.tracking
         est = sorted(estimates, key=lambda e: (not e[7], e[8]))  # confirmed first, then region
         kept: list[tuple] = []
-        for e in est:
-            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance for k in kept):
+        for e in est:  # a region's own targets are never merged with each other
+            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance
+                   or (e[8] == k[8] and e[7] and k[7]) for k in kept):
                 kept.append(e)
         live = [tr for tr in self._tracks.values() if index - tr.last_frame <= tc.id_memory + 1]
         events: list[TrackEvent] = []
