@@ -323,7 +323,7 @@ class TBDFilterConfig:
     birth_particles: int = field(default=500, metadata=_range(1, None))
     continuation_particles: int = field(default=1000, metadata=_range(1, None))
     death_particles: int = field(default=250, metadata=_range(1, None))
-    p_birth: float = field(default=0.01, metadata=_range(0.0, 0.5))
+    p_birth: float = field(default=0.002, metadata=_range(0.0, 0.5))
     p_death: float = field(default=0.1, metadata=_range(0.0, 0.5))
     birth_uniform: float = field(default=0.2, metadata=_range(0.0, 1.0))
     seed: int = field(default=0, metadata=_range(0, None))
@@ -334,6 +334,7 @@ class TBDRegionConfig:
     """Where the filters run: the whole frame, fixed tiles, or windows around candidates."""
 
     mode: str = field(default="auto", metadata={"choices": ("auto", "full", "tiles", "candidates")})
+    search: str = field(default="auto", metadata={"choices": ("auto", "all", "sky")})
     full_max_pixels: int = field(default=16384, metadata=_range(64, None))
     tile: int = field(default=64, metadata=_range(8, 1024))
     tile_overlap: int = field(default=8, metadata=_range(0, 512))
@@ -366,6 +367,8 @@ class TBDConfig:
     filter: TBDFilterConfig = TBDFilterConfig()
     regions: TBDRegionConfig = TBDRegionConfig()
     tracking: TBDTrackingConfig = TBDTrackingConfig()
+    circle: CircleConfig = CircleConfig()
+    horizon: HorizonConfig = HorizonConfig()
 
     def validate(self) -> None:
         """Cross-field checks (raise ConfigError)."""

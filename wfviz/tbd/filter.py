@@ -130,6 +130,7 @@ class RegionFilter:
         with np.errstate(divide="ignore"):
             self.log_pi = np.log(pi)  # [n, m]
             self.log_p = np.log(np.eye(N + 1)[0])  # no target before the first frame
+        self.log_p_prev = self.log_p.copy()
         nb, nc, nd = self.sizes
         # sources for the next frame, by the hypothesis they feed
         self.src_birth = [None] + [Particles.empty(nb, n - 1) for n in range(1, N + 1)]

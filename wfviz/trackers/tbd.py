@@ -20,6 +20,8 @@ from scipy.optimize import linear_sum_assignment
 from wfviz.config import TBDConfig
 from wfviz.detection import Detections
 from wfviz.frames import Frame
+from wfviz.horizon import HorizonTracker, search_region
+from wfviz.imaging_circle import ImagingCircle, estimate_imaging_circle, non_imaging_mask
 from wfviz.tbd.filter import BankOutput, RegionFilter
 from wfviz.tbd.model import matched_filter, normalise
 from wfviz.trackers.base import FrameResult
@@ -119,6 +121,9 @@ class TBDTracker:
         self._tracks: dict[int, _Track] = {}
         self._next_id = 1
         self._count = 0
+        self.horizon = HorizonTracker(self.config.horizon)
+        self._valid: np.ndarray | None = None
+        self._search: np.ndarray | None = None
 
     # -- regions ------------------------------------------------------------------------------
     def _setup(self, shape: tuple[int, int]) -> None:
@@ -142,6 +147,29 @@ class TBDTracker:
         self._next_region += 1
         self.banks.append(bank)
         return bank
+
+    def _search_region(self, img: np.ndarray) -> np.ndarray | None:
+        """Sky search region (``regions.search``; "auto": over tiles and windows only): inside
+        the imaging circle and above the horizon, as for the GEWC tracker; None = everywhere."""
+        c = self.config
+        mode = c.regions.search
+        if mode == "all" or (mode == "auto" and self._mode == "full"):
+            return None
+        changed = False
+        if self._valid is None or self._valid.shape != img.shape:
+            cc = c.circle
+            if not cc.enabled:
+                circle = None
+            elif cc.center is not None and cc.radius is not None:
+                circle = ImagingCircle(cc.center[0], cc.center[1], cc.radius)
+            else:
+                circle = estimate_imaging_circle(img)
+            self._valid = ~non_imaging_mask(img.shape, circle, cc.margin)
+            changed = True
+        horizon, updated = self.horizon.update(img, self._valid)
+        if changed or updated or self._search is None:
+            self._search = search_region(self._valid, horizon, c.horizon.margin)
+        return self._search
 
     def _max_speed(self) -> float:
         """``model.max_speed``, or when "auto" 1 px/frame on small frames (the paper's sub-pixel
@@ -230,6 +258,10 @@ class TBDTracker:
         y, sigma, texture = normalise(img, self._background(), c.model.background_window,
                                       c.model.remove_spikes, c.model.noise_window)
         t = matched_filter(y, c.model.psf_sigma, c.model.patch_radius)
+        sky = self._search_region(img)
+        if sky is not None:  # no evidence outside the search region
+            y[~sky] = 0.0
+            t[~sky] = 0.0
         t1 = time.perf_counter()
         timings["normalise"] = (t1 - t_start) * 1e3
         dets = empty_detections(img.shape)
@@ -310,15 +342,15 @@ class TBDTracker:
     def _associate(self, index: int, estimates: list[tuple], c: TBDConfig
                    ) -> tuple[list[TrackState], list[Prediction], list[TrackEvent], dict, dict]:
         """Stable ids: estimates are assigned (Hungarian, distance <= ``tracking.id_gate``) to
-        the tracks' predicted positions (last estimate + velocity x frames since). Duplicates
-        (closer than ``merge_distance``) from overlapping regions, or a tentative target on a
-        confirmed one, are merged: confirmed first, then the older region's."""
+        the tracks' predicted positions (last estimate + velocity x frames since). Estimates
+        closer than ``merge_distance`` (the same target seen by overlapping regions, a tentative
+        target on a confirmed one, or two hypothesised targets on one extended spot) are merged,
+        keeping confirmed ones first, then the older region's."""
         tc = c.tracking
         est = sorted(estimates, key=lambda e: (not e[7], e[8]))  # confirmed first, then region
         kept: list[tuple] = []
-        for e in est:  # a region's own targets are never merged with each other
-            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance
-                   or (e[8] == k[8] and e[7] and k[7]) for k in kept):
+        for e in est:
+            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance for k in kept):
                 kept.append(e)
         live = [tr for tr in self._tracks.values() if index - tr.last_frame <= tc.id_memory + 1]
         events: list[TrackEvent] = []

@@ -1,0 +1,91 @@
+"""Time the track-before-detect tracker alone, per stage, on one core.
+
+Frames are rendered into memory first (rendering is not timed); the tracker is then run over
+them ``--runs`` times, a fresh tracker (same seed) each run. For every frame and stage the
+median over the runs is kept; the table reports, over the frames, the median, mean and 95th
+percentile of each stage. Run from the repository root:
+
+    python benchmarks/bench_tbd.py                          # lowsnr-tbd (64x64), SNR 3, 7 runs
+    python benchmarks/bench_tbd.py --scenario fov70-four-targets --frames 60 --runs 3   # 640x512
+    python benchmarks/bench_tbd.py --config my.toml         # a tbd config file
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load their thread pools
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import platform  # noqa: E402
+import time  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wfviz.config import TBDConfig, load_config  # noqa: E402
+from wfviz.frames import Frame  # noqa: E402
+from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.trackers.tbd import STAGES, TBDTracker  # noqa: E402
+
+COLUMNS = list(STAGES) + ["total"]
+
+
+def run_once(frames: list[Frame], config: TBDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(frames, stages) ms per stage, (frames,) wall and CPU ms per step, (frames,) regions."""
+    tracker = TBDTracker(config)
+    stages = np.zeros((len(frames), len(COLUMNS)))
+    wall = np.zeros(len(frames))
+    cpu = np.zeros(len(frames))
+    regions = np.zeros(len(frames))
+    for i, f in enumerate(frames):
+        c0, t0 = time.thread_time(), time.perf_counter()
+        r = tracker.step(f)
+        wall[i] = (time.perf_counter() - t0) * 1e3
+        cpu[i] = (time.thread_time() - c0) * 1e3
+        stages[i] = [r.timings.get(s, 0.0) for s in COLUMNS]
+        regions[i] = len(r.regions)
+    return stages, wall, cpu, regions
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--scenario", default="lowsnr-tbd")
+    ap.add_argument("--seed", type=int, default=0)
+    ap.add_argument("--snr", type=float, default=None, help="peak SNR of every target (lowsnr-tbd: 3)")
+    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
+    ap.add_argument("--runs", type=int, default=7)
+    ap.add_argument("--config", default=None, help="tbd TOML config (default: defaults)")
+    args = ap.parse_args()
+
+    cv2.setNumThreads(1)
+    config = load_config(args.config, TBDConfig)
+    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames, snr=args.snr)
+    frames = list(clip.frames())
+    h, w = frames[0].image.shape
+    run_once(frames[:5], config)  # warm-up (imports, allocator, caches)
+    results = [run_once(frames, config) for _ in range(args.runs)]
+    stages = np.median([r[0] for r in results], axis=0)
+    wall = np.median([r[1] for r in results], axis=0)
+    cpu = np.median([r[2] for r in results], axis=0)
+    regions = results[0][3]
+    f = config.filter
+    print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "
+          f"({platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "
+          f"OpenCV {cv2.__version__}); N_max {f.max_targets}, particles per PF_n "
+          f"{f.birth_particles} + {f.continuation_particles} + {f.death_particles}; "
+          f"regions per frame {np.median(regions):.0f} median, {regions.max():.0f} max")
+    print("ms per frame, per-frame median over the runs")
+    header = f"{'stage':12s} | {'median':>8s} {'mean':>8s} {'p95':>8s}"
+    print(header)
+    print("-" * len(header))
+    extra = {"step (wall)": wall, "step (CPU)": cpu}  # CPU time: robust when the machine is shared
+    for j, s in enumerate(COLUMNS + list(extra)):
+        col = extra[s] if s in extra else stages[:, j]
+        print(f"{s:12s} | {np.median(col):8.3f} {np.mean(col):8.3f} {np.percentile(col, 95):8.3f}")
+
+
+if __name__ == "__main__":
+    main()
