@@ -11,7 +11,6 @@ from __future__ import annotations
 
 import argparse
 import platform
-import re
 import sys
 import time
 from collections import defaultdict
@@ -22,6 +21,9 @@ import numpy as np
 from wfviz.run import run
 from wfviz.synth.scenarios import list_scenarios, make_scenario
 from wfviz.trackers import TRACKERS, make_tracker
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_blocks import write_block  # noqa: E402
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "accuracy.md"
 BEGIN, END = "<!-- scenarios:begin -->", "<!-- scenarios:end -->"
@@ -89,13 +91,7 @@ def main() -> None:
     if args.no_write:
         print(block)
         return
-    text = DOC.read_text(encoding="utf-8")
-    if BEGIN not in text or END not in text:
-        sys.exit(f"{DOC}: markers {BEGIN} / {END} not found")
-    text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: f"{BEGIN}\n{block}\n{END}",
-                  text, flags=re.S)
-    DOC.write_text(text, encoding="utf-8")
-    print(f"wrote {DOC}")
+    write_block(DOC, BEGIN, END, block)
 
 
 if __name__ == "__main__":

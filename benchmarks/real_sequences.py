@@ -19,6 +19,9 @@ import sys
 import tempfile
 from pathlib import Path
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_blocks import write_block  # noqa: E402
+
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "real"
 DOC = ROOT / "docs" / "accuracy.md"
@@ -118,13 +121,7 @@ def main() -> None:
     if args.no_write:
         print(block)
         return
-    text = DOC.read_text(encoding="utf-8")
-    if BEGIN not in text:
-        text += f"\n## Real sequences\n\n{BEGIN}\n{END}\n"
-    text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: f"{BEGIN}\n{block}\n{END}",
-                  text, flags=re.S)
-    DOC.write_text(text, encoding="utf-8")
-    print(f"wrote {DOC}")
+    write_block(DOC, BEGIN, END, block, heading="## Real sequences")
 
 
 if __name__ == "__main__":

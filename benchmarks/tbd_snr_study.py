@@ -28,7 +28,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
-import re  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
 from collections import defaultdict  # noqa: E402
@@ -41,6 +40,9 @@ from wfviz.frames import Frame  # noqa: E402
 from wfviz.run import run  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers import make_tracker  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_blocks import write_block  # noqa: E402
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "accuracy.md"
 BEGIN, END = "<!-- tbd-snr:begin -->", "<!-- tbd-snr:end -->"
@@ -160,13 +162,7 @@ def main() -> None:
     print(block)
     if args.no_write:
         return
-    text = DOC.read_text(encoding="utf-8")
-    if BEGIN not in text or END not in text:
-        sys.exit(f"{DOC}: markers {BEGIN} / {END} not found")
-    text = re.sub(re.escape(BEGIN) + ".*?" + re.escape(END), lambda _: f"{BEGIN}\n{block}\n{END}",
-                  text, flags=re.S)
-    DOC.write_text(text, encoding="utf-8")
-    print(f"wrote {DOC}")
+    write_block(DOC, BEGIN, END, block)
 
 
 if __name__ == "__main__":
