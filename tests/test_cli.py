@@ -197,3 +197,18 @@ def test_record_with_truth_logs_eval_entities(tmp_path):
     proc = wfviz("record", str(folder), "-o", str(tmp_path / "s.rrd"), "--truth", str(bad), cwd=tmp_path)
     assert proc.returncode == 2 and "bad.csv:2" in proc.stderr and "'x'" in proc.stderr
     assert not (tmp_path / "s.rrd").exists() and not (tmp_path / "s.rrd.part").exists()
+
+
+def test_bench_prints_per_stage_table(tmp_path):
+    from wfviz.synth.demo import demo_clip
+    clip = tmp_path / "clip.npy"
+    np.save(clip, np.stack([f.image for f in demo_clip().frames(0, 8)]))
+    proc = wfviz("bench", str(clip), cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    lines = proc.stdout.splitlines()
+    assert "5 frames timed" in lines[0]  # 3 warm-up frames are not timed
+    stages = [line.split()[0] for line in lines[2:-1]]
+    assert stages[0] == "decode" and stages[-1] == "total" and "centroid" in stages
+    assert not list(tmp_path.glob("*.csv")) and not list(tmp_path.glob("*.rrd"))  # writes nothing
+    proc = wfviz("bench", str(clip), "--stop", "2", cwd=tmp_path)
+    assert proc.returncode == 2 and "need more than 3 frames" in proc.stderr

@@ -333,6 +333,30 @@ def screenshot(
     out.print(f"screenshot: {output}", highlight=False)
 
 
+@app.command("bench")
+@_guarded
+def bench_(
+    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    tracker: TrackerOpt = "gewc",
+    config: ConfigOpt = None,
+    start: StartOpt = 0,
+    stop: StopOpt = None,
+    fps: FpsOpt = None,
+    threads: Annotated[int, typer.Option("--threads", min=0, help="OpenCV threads (1 = one core, 0 = OpenCV's default).")] = 1,
+) -> None:
+    """Time each stage of a tracker on a clip (decoding separately), nothing written."""
+    import cv2
+
+    from wfviz.bench import bench, format_bench
+
+    if threads > 0:
+        cv2.setNumThreads(threads)
+    trk = _tracker(tracker, config)
+    source = open_clip(clip, fps=fps)
+    result = bench(source, trk, start=start, stop=stop)
+    out.print(format_bench(result, tracker), highlight=False, markup=False)
+
+
 @app.command("config")
 def show_config(tracker: TrackerOpt = "gewc") -> None:
     """Print the default configuration as TOML (edit it and pass it with --config)."""
