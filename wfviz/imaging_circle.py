@@ -7,6 +7,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from wfviz.config import CircleConfig
+
 
 @dataclass(frozen=True)
 class ImagingCircle:
@@ -121,3 +123,16 @@ def non_imaging_mask(shape: tuple[int, int], circle: ImagingCircle | None, margi
         return np.zeros(shape, dtype=bool)
     yy, xx = np.ogrid[: shape[0], : shape[1]]
     return (xx - circle.cx) ** 2 + (yy - circle.cy) ** 2 > (circle.radius - margin) ** 2
+
+
+def resolve_circle(image: np.ndarray, cfg: CircleConfig) -> ImagingCircle | None:
+    """The imaging circle a config asks for: none, the configured one, or estimated from
+    ``image`` with any configured centre or radius taking precedence."""
+    if not cfg.enabled:
+        return None
+    if cfg.center is not None and cfg.radius is not None:
+        return ImagingCircle(cfg.center[0], cfg.center[1], cfg.radius)
+    circle = estimate_imaging_circle(image)
+    if circle is not None and (cfg.center is not None or cfg.radius is not None):
+        circle = ImagingCircle(*(cfg.center or (circle.cx, circle.cy)), cfg.radius or circle.radius)
+    return circle

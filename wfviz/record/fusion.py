@@ -6,10 +6,9 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import DETECTION_COLOR, Recorder, track_color
+from wfviz.record.recorder import DETECTION_COLOR, Recorder, log_geometry, track_color
 from wfviz.trackers.fusion import FusionResult
 
-MASK_COLOR = (255, 0, 255, 70)
 LOST_COLOR = (255, 80, 80, 200)
 
 
@@ -34,7 +33,7 @@ class FusionRecorder(Recorder):
 
     def log_stages(self, result: FusionResult, images: bool) -> None:  # type: ignore[override]
         rec = self.rec
-        self._log_geometry(result)
+        log_geometry(self.rec, result)
         if images:
             rec.log("suppressed/image", rr.Image(result.suppressed))
         f, n = result.features, len(result.features)
@@ -77,25 +76,3 @@ class FusionRecorder(Recorder):
             if p.confirmed:
                 rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))
 
-    def _log_geometry(self, result: FusionResult) -> None:
-        """Mask, imaging circle, horizon and bad pixels, as the GEWC adapter logs them."""
-        rec = self.rec
-        if result.mask_changed:
-            rec.log("camera/mask", rr.AnnotationContext([
-                rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
-                rr.ClassDescription(info=rr.AnnotationInfo(id=1, label="non-imaging", color=MASK_COLOR))]),
-                static=True)
-            rec.log("camera/mask", rr.SegmentationImage(result.mask.astype(np.uint8)), static=True)
-            c = result.circle
-            a = np.linspace(0, 2 * np.pi, 181)
-            rec.log("camera/imaging_circle", rr.LineStrips2D(
-                [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
-                labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3], radii=0.5), static=True)
-        if result.bad_pixels_changed:
-            hp = result.bad_pixels
-            rec.log("camera/bad_pixels", rr.Points2D(hp[:, ::-1].astype(np.float32) if len(hp) else np.zeros((0, 2)),
-                                                     colors=(255, 60, 60), radii=2.0))
-        if result.horizon_updated:
-            line = result.horizon.polyline() if result.horizon is not None else None
-            rec.log("camera/horizon", rr.LineStrips2D(
-                [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))

@@ -30,6 +30,33 @@ def track_color(track_id: int) -> tuple[int, int, int]:
     return int(r * 255), int(g * 255), int(b * 255)
 
 
+MASK_COLOR = (255, 0, 255, 70)
+
+
+def log_geometry(rec: rr.RecordingStream, result: object) -> None:
+    """Non-imaging mask and imaging circle (static, when they change), flagged bad pixels and
+    the horizon (when re-estimated), for trackers whose results carry them."""
+    if result.mask_changed:
+        rec.log("camera/mask", rr.AnnotationContext([
+            rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
+            rr.ClassDescription(info=rr.AnnotationInfo(id=1, label="non-imaging", color=MASK_COLOR))]),
+            static=True)
+        rec.log("camera/mask", rr.SegmentationImage(result.mask.astype(np.uint8)), static=True)
+        c = result.circle
+        a = np.linspace(0, 2 * np.pi, 181)
+        rec.log("camera/imaging_circle", rr.LineStrips2D(
+            [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
+            labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3], radii=0.5), static=True)
+    if result.bad_pixels_changed:
+        bp = result.bad_pixels
+        rec.log("camera/bad_pixels", rr.Points2D(bp[:, ::-1].astype(np.float32) if len(bp) else np.zeros((0, 2)),
+                                                 colors=(255, 60, 60), radii=2.0))
+    if result.horizon_updated:
+        line = result.horizon.polyline() if result.horizon is not None else None
+        rec.log("camera/horizon", rr.LineStrips2D(
+            [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
+
+
 class Recorder:
     """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
 

@@ -15,7 +15,7 @@ from wfviz.detection import Detections, detect, signal_to_clutter
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
 from wfviz.registration import MotionEstimator
-from wfviz.imaging_circle import ImagingCircle, estimate_imaging_circle, non_imaging_mask
+from wfviz.imaging_circle import ImagingCircle, non_imaging_mask, resolve_circle
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import TrackManager
 
@@ -71,16 +71,8 @@ class GEWCTracker:
         if self._mask is not None and self._mask.shape == image.shape:
             return self._mask, False
         cc = self.config.circle
-        if not cc.enabled:
-            circle = None
-        elif cc.center is not None and cc.radius is not None:
-            circle = ImagingCircle(cc.center[0], cc.center[1], cc.radius)
-        else:
-            circle = estimate_imaging_circle(image)
-            if circle is not None and (cc.center is not None or cc.radius is not None):
-                circle = ImagingCircle(*(cc.center or (circle.cx, circle.cy)), cc.radius or circle.radius)
-        self.circle = circle
-        self._mask = non_imaging_mask(image.shape, circle, cc.margin)
+        self.circle = resolve_circle(image, cc)
+        self._mask = non_imaging_mask(image.shape, self.circle, cc.margin)
         return self._mask, True
 
     def _exclude_ground(self) -> bool:

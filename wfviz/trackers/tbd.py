@@ -21,7 +21,7 @@ from wfviz.config import TBDConfig
 from wfviz.detection import Detections
 from wfviz.frames import Frame
 from wfviz.horizon import HorizonTracker, search_region
-from wfviz.imaging_circle import ImagingCircle, estimate_imaging_circle, non_imaging_mask
+from wfviz.imaging_circle import non_imaging_mask, resolve_circle
 from wfviz.tbd.filter import BankOutput, RegionFilter
 from wfviz.tbd.model import matched_filter, normalise
 from wfviz.trackers.base import FrameResult
@@ -157,14 +157,7 @@ class TBDTracker:
             return None
         changed = False
         if self._valid is None or self._valid.shape != img.shape:
-            cc = c.circle
-            if not cc.enabled:
-                circle = None
-            elif cc.center is not None and cc.radius is not None:
-                circle = ImagingCircle(cc.center[0], cc.center[1], cc.radius)
-            else:
-                circle = estimate_imaging_circle(img)
-            self._valid = ~non_imaging_mask(img.shape, circle, cc.margin)
+            self._valid = ~non_imaging_mask(img.shape, resolve_circle(img, c.circle), c.circle.margin)
             changed = True
         horizon, updated = self.horizon.update(img, self._valid)
         if changed or updated or self._search is None:
