@@ -2,6 +2,7 @@
 
 from __future__ import annotations
 
+import time
 from dataclasses import dataclass
 from typing import Protocol
 
@@ -32,3 +33,25 @@ class Tracker(Protocol):
     def step(self, frame: Frame) -> FrameResult:
         """Process one frame."""
         ...
+
+
+class StageTimer:
+    """Milliseconds per stage: :meth:`lap` adds the time since the previous lap to ``stage``
+    (stages may repeat); :meth:`done` adds ``total`` since creation and returns the dict."""
+
+    def __init__(self, stages: tuple[str, ...] = ()) -> None:
+        self.timings: dict[str, float] = dict.fromkeys(stages, 0.0)
+        self._start = self._t0 = time.perf_counter()
+
+    def lap(self, stage: str) -> None:
+        t1 = time.perf_counter()
+        self.timings[stage] = self.timings.get(stage, 0.0) + (t1 - self._t0) * 1e3
+        self._t0 = t1
+
+    def skip(self) -> None:
+        """Start the next lap now: the time since the last lap is not counted."""
+        self._t0 = time.perf_counter()
+
+    def done(self) -> dict[str, float]:
+        self.timings["total"] = (time.perf_counter() - self._start) * 1e3
+        return self.timings

@@ -48,7 +48,7 @@ from wfviz.detection import Detections, detect
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
 from wfviz.imaging_circle import ImagingCircle, non_imaging_mask, resolve_circle
-from wfviz.trackers.base import FrameResult
+from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackEvent, TrackManager
 
 _BIG = 1e9
@@ -490,16 +490,9 @@ class FusionTracker:
     def step(self, frame: Frame) -> FusionResult:
         """Run every stage on one frame."""
         c, fc = self.config, self.config.fusion
-        timings = dict.fromkeys(("defects", "mask", "horizon", "windows", "suppress", "detect",
-                                 "associate", "kalman"), 0.0)
-        t_start = t0 = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal t0
-            t1 = time.perf_counter()
-            timings[stage] += (t1 - t0) * 1e3
-            t0 = t1
-
+        timer = StageTimer(("defects", "mask", "horizon", "windows", "suppress", "detect",
+                            "associate", "kalman"))
+        lap, timings = timer.lap, timer.timings
         raw, img = frame.image, self.bad.clean(frame.image)
         lap("defects")
         mask, mask_changed = self._imaging_mask(img)
@@ -546,7 +539,7 @@ class FusionTracker:
             dets, feats, suppressed, horizon_updated, times = self._global(img, valid, mask_changed)
             for k, v in times.items():
                 timings[k] += v
-            t0 = time.perf_counter()
+            timer.skip()  # _global timed its own stages
             pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, frame.image.shape)
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
             recovered, recover_cost = self._recover(preds, pred_xy, lost, pairs, feats, confirmed,
@@ -583,7 +576,7 @@ class FusionTracker:
         assigned = np.full(len(dets), -1, dtype=np.int64)
         for m in matches:
             assigned[m.detection] = m.track_id
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        timings = timer.done()
         return FusionResult(
             index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,

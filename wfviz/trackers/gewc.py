@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
@@ -16,7 +15,7 @@ from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
 from wfviz.registration import MotionEstimator
 from wfviz.imaging_circle import ImagingCircle, non_imaging_mask, resolve_circle
-from wfviz.trackers.base import FrameResult
+from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
 
 
@@ -85,15 +84,8 @@ class GEWCTracker:
         """Run every stage on one frame."""
         c = self.config
         img = frame.image
-        timings: dict[str, float] = {}
-        t0 = t_start = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal t0
-            t1 = time.perf_counter()
-            timings[stage] = (t1 - t0) * 1e3
-            t0 = t1
-
+        timer = StageTimer()
+        lap = timer.lap
         raw, img = img, self.bad.clean(img)
         lap("defects")
         mask, mask_changed = self._imaging_mask(img)
@@ -135,7 +127,7 @@ class GEWCTracker:
             scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
             birth_scores=None if sig is None else sig[born])
         lap("kalman")
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        timings = timer.done()
         return GEWCResult(
             index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,

@@ -24,7 +24,7 @@ from wfviz.starfield.chains import (NEW, OUT, PREDICTED, RUN, STAR_LATER, Candid
                                     Found, Redetection)
 from wfviz.starfield.registration import Registration, apply, register
 from wfviz.starfield.segmentation import Segmentation, resegment, segment
-from wfviz.trackers.base import FrameResult
+from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackState
 
 # why an unpaired point is or is not a candidate
@@ -223,15 +223,8 @@ class StarfieldTracker:
     def step(self, frame: Frame) -> StarfieldResult:
         """Run every stage on one frame."""
         c = self.config
-        timings: dict[str, float] = {}
-        t0 = t_start = time.perf_counter()
-
-        def lap(stage: str) -> None:
-            nonlocal t0
-            t1 = time.perf_counter()
-            timings[stage] = (t1 - t0) * 1e3
-            t0 = t1
-
+        timer = StageTimer()
+        lap, timings = timer.lap, timer.timings
         k, shape = frame.index, frame.image.shape[:2]
         seg = segment(frame.image, c.segmentation)
         pts = seg.points
@@ -287,7 +280,7 @@ class StarfieldTracker:
         timings["resegment"] = reseg_ms
         self._prev = (pts, self._to_ref.copy())
         return self._result(frame, seg, reg, paired, segments, unpaired, status, to_ref, to_img, preds,
-                            events, redets, timings, t_start)
+                            events, redets, timer)
 
     def _predictions(self, frame: int, to_img: np.ndarray) -> list[Prediction]:
         """This frame's predictions: Run chains (Kalman, gate = chains.gate) and New chains
@@ -309,7 +302,7 @@ class StarfieldTracker:
     def _result(self, frame: Frame, seg: Segmentation, reg: Registration, paired: np.ndarray,
                 segments: np.ndarray, unpaired: np.ndarray, status: np.ndarray, to_ref: np.ndarray,
                 to_img: np.ndarray, preds: list[Prediction], events: list, redets: list,
-                timings: dict[str, float], t_start: float) -> StarfieldResult:
+                timer: StageTimer) -> StarfieldResult:
         m, k = self.manager, frame.index
         lin = to_img[:, :2]
         tracks: list[TrackState] = []
@@ -336,7 +329,7 @@ class StarfieldTracker:
                 pts = ch.points[-n_trail:]
                 xy = apply(to_img, np.array([[q.x, q.y] for q in pts]))
                 views.append(ChainView(ch.chain_id, name, xy, tuple(q.kind for q in pts)))
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        timings = timer.done()
         return StarfieldResult(
             index=k, time=frame.time, tracks=tuple(tracks), predictions=tuple(preds),
             detections=_subset(seg.points, unpaired[status == CANDIDATE]), events=tuple(events),
