@@ -136,3 +136,21 @@ def resolve_circle(image: np.ndarray, cfg: CircleConfig) -> ImagingCircle | None
     if circle is not None and (cfg.center is not None or cfg.radius is not None):
         circle = ImagingCircle(*(cfg.center or (circle.cx, circle.cy)), cfg.radius or circle.radius)
     return circle
+
+
+class ImagingMask:
+    """A clip's non-imaging mask (eq. 1): resolved from its first frame (or the config) and
+    kept while the frame size stays the same."""
+
+    def __init__(self, cfg: CircleConfig) -> None:
+        self.cfg = cfg
+        self.circle: ImagingCircle | None = None
+        self.mask: np.ndarray | None = None
+
+    def update(self, image: np.ndarray) -> tuple[np.ndarray, bool]:
+        """(mask, whether it was computed on this call)."""
+        if self.mask is not None and self.mask.shape == image.shape:
+            return self.mask, False
+        self.circle = resolve_circle(image, self.cfg)
+        self.mask = non_imaging_mask(image.shape, self.circle, self.cfg.margin)
+        return self.mask, True

@@ -25,10 +25,7 @@ class FusionRecorder(Recorder):
                                contents=[f"/fusion/{i}/phi" for i in track_ids]),
             rrb.TimeSeriesView(origin="fusion", name="Matching cost",
                                contents=[f"/fusion/{i}/cost" for i in track_ids]),
-            rrb.TimeSeriesView(origin="kalman", name="Kalman innovation (px)",
-                               contents=[f"/kalman/{i}/innovation" for i in track_ids]),
-            rrb.TimeSeriesView(origin="kalman", name="Kalman covariance trace",
-                               contents=[f"/kalman/{i}/cov_trace" for i in track_ids]),
+            *self.kalman_views(track_ids),
         )
 
     def log_stages(self, result: FusionResult, images: bool) -> None:  # type: ignore[override]

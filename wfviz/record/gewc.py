@@ -21,10 +21,7 @@ class GEWCRecorder(Recorder):
         return rrb.Tabs(
             rrb.Grid(*[rrb.BarChartView(origin=f"gewc/{i}", name=f"GEWC weights, track {i}")
                        for i in shown], name="GEWC region weights"),
-            rrb.TimeSeriesView(origin="kalman", name="Kalman innovation (px)",
-                               contents=[f"/kalman/{i}/innovation" for i in track_ids]),
-            rrb.TimeSeriesView(origin="kalman", name="Kalman covariance trace",
-                               contents=[f"/kalman/{i}/cov_trace" for i in track_ids]),
+            *self.kalman_views(track_ids),
         )
 
     def log_stages(self, result: GEWCResult, images: bool) -> None:  # type: ignore[override]

@@ -86,16 +86,9 @@ class Recorder:
         """
         return rrb.Blueprint(
             rrb.Horizontal(
+                rrb.Vertical(*self.image_views()),
                 rrb.Vertical(
-                    rrb.Spatial2DView(origin="camera", name="Camera + overlays"),
-                    rrb.Spatial2DView(origin="suppressed", name="Background-suppressed",
-                                      contents=["$origin/**", "/camera/detections",
-                                                "/camera/gates", "/camera/predictions"]),
-                ),
-                rrb.Vertical(
-                    rrb.Tabs(rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
-                             rrb.TimeSeriesView(origin="detection", name="Detections"),
-                             rrb.TimeSeriesView(origin="eval", name="Errors vs truth")),
+                    rrb.Tabs(*self.series_views()),
                     self.track_views(track_ids),
                     rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
                                  filter_by_log_level=["INFO", "WARN", "ERROR"])),  # DEBUG: tentative tracks
@@ -109,9 +102,30 @@ class Recorder:
             rrb.TimePanel(timeline="frame", state="collapsed"),
         )
 
+    def image_views(self) -> list[rrb.View]:
+        """Left column: the raw frame with overlays above the stage image."""
+        return [rrb.Spatial2DView(origin="camera", name="Camera + overlays"),
+                rrb.Spatial2DView(origin="suppressed", name="Background-suppressed",
+                                  contents=["$origin/**", "/camera/detections", "/camera/gates",
+                                            "/camera/predictions"])]
+
+    def series_views(self) -> list[rrb.View]:
+        """Right column, top tabs: per-frame series."""
+        return [rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
+                rrb.TimeSeriesView(origin="detection", name="Detections"),
+                rrb.TimeSeriesView(origin="eval", name="Errors vs truth")]
+
     def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
         """Per-track views (right column, middle); overridden by tracker adapters."""
         return rrb.TimeSeriesView(origin="kalman", name="Kalman")
+
+    @staticmethod
+    def kalman_views(track_ids: list[int]) -> list[rrb.View]:
+        """Innovation and covariance-trace plots of the given tracks."""
+        return [rrb.TimeSeriesView(origin="kalman", name="Kalman innovation (px)",
+                                   contents=[f"/kalman/{i}/innovation" for i in track_ids]),
+                rrb.TimeSeriesView(origin="kalman", name="Kalman covariance trace",
+                                   contents=[f"/kalman/{i}/cov_trace" for i in track_ids])]
 
     # -- per frame ------------------------------------------------------------------------
     def log(self, frame: Frame, result: FrameResult) -> None:

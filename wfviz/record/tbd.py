@@ -24,33 +24,19 @@ class TBDRecorder(Recorder):
         self._counts_logged = 0
         self._regions_logged = False
 
-    def blueprint(self, track_ids: list[int] | None = None) -> rrb.Blueprint:
-        """The common layout, with the particles over the raw and the normalised frames."""
-        return rrb.Blueprint(
-            rrb.Horizontal(
-                rrb.Vertical(
-                    rrb.Spatial2DView(origin="camera", name="Camera + particles",
-                                      contents=["$origin/**", "/tbd/particles"]),
-                    rrb.Spatial2DView(origin="suppressed", name="Normalised frame (z - b) / sigma",
-                                      contents=["$origin/**", "/tbd/particles", "/camera/predictions",
-                                                "/camera/gates", "/camera/truth", "/camera/regions"]),
-                ),
-                rrb.Vertical(
-                    rrb.Tabs(rrb.TimeSeriesView(origin="tbd/p_count", name="P(target count)"),
-                             rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
-                             rrb.TimeSeriesView(origin="eval", name="Errors vs truth")),
-                    self.track_views(track_ids),
-                    rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
-                                 filter_by_log_level=["INFO", "WARN", "ERROR"])),
-                             rrb.TextDocumentView(origin="config", name="Config"),
-                             rrb.TextDocumentView(origin="eval/summary", name="Scores")),
-                ),
-                column_shares=[3, 2],
-            ),
-            rrb.BlueprintPanel(state="collapsed"),
-            rrb.SelectionPanel(state="collapsed"),
-            rrb.TimePanel(timeline="frame", state="collapsed"),
-        )
+    def image_views(self) -> list[rrb.View]:
+        """The particles over the raw and the normalised frames."""
+        return [rrb.Spatial2DView(origin="camera", name="Camera + particles",
+                                  contents=["$origin/**", "/tbd/particles"]),
+                rrb.Spatial2DView(origin="suppressed", name="Normalised frame (z - b) / sigma",
+                                  contents=["$origin/**", "/tbd/particles", "/camera/predictions",
+                                            "/camera/gates", "/camera/truth", "/camera/regions"])]
+
+    def series_views(self) -> list[rrb.View]:
+        """The count posterior first, then the common series."""
+        return [rrb.TimeSeriesView(origin="tbd/p_count", name="P(target count)"),
+                rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
+                rrb.TimeSeriesView(origin="eval", name="Errors vs truth")]
 
     def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
         views = [rrb.TimeSeriesView(origin="tbd", name="Count estimate / noise sigma",

@@ -47,7 +47,7 @@ from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
-from wfviz.imaging_circle import ImagingCircle, non_imaging_mask, resolve_circle
+from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackEvent, TrackManager
 
@@ -295,9 +295,8 @@ class FusionTracker:
         self.manager = TrackManager(c.kalman, c.tracking)
         self.horizon = HorizonTracker(c.horizon)
         self.bad = BadPixels(c.defects)
-        self.circle: ImagingCircle | None = None
+        self.imaging = ImagingMask(c.circle)
         self.horizon_line: Horizon | None = None
-        self._mask: np.ndarray | None = None
         self._region: np.ndarray | None = None
         self._threshold = float("inf")
         self._refs: dict[int, _Ref] = {}
@@ -306,14 +305,10 @@ class FusionTracker:
         self._inf_dirty: list[tuple[int, int, int, int]] = []
 
     # -- helpers --------------------------------------------------------------------------
-    def _imaging_mask(self, image: np.ndarray) -> tuple[np.ndarray, bool]:
-        if self._mask is not None and self._mask.shape == image.shape:
-            return self._mask, False
-        cc = self.config.circle
-        self.circle = resolve_circle(image, cc)
-        self._mask = non_imaging_mask(image.shape, self.circle, cc.margin)
-        self._region = None
-        return self._mask, True
+    @property
+    def circle(self) -> ImagingCircle | None:
+        """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
+        return self.imaging.circle
 
     def _crops(self, preds: list[Prediction], shape: tuple[int, int]
                ) -> list[tuple[tuple[int, int, int, int], np.ndarray]]:
@@ -489,13 +484,15 @@ class FusionTracker:
     # -- per frame ------------------------------------------------------------------------
     def step(self, frame: Frame) -> FusionResult:
         """Run every stage on one frame."""
-        c, fc = self.config, self.config.fusion
+        fc = self.config.fusion
         timer = StageTimer(("defects", "mask", "horizon", "windows", "suppress", "detect",
                             "associate", "kalman"))
         lap, timings = timer.lap, timer.timings
         raw, img = frame.image, self.bad.clean(frame.image)
         lap("defects")
-        mask, mask_changed = self._imaging_mask(img)
+        mask, mask_changed = self.imaging.update(img)
+        if mask_changed:
+            self._region = None
         valid = ~mask
         lap("mask")
         preds = self.manager.predict(frame.index)

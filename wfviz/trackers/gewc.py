@@ -14,7 +14,7 @@ from wfviz.detection import Detections, detect, signal_to_clutter
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_region
 from wfviz.registration import MotionEstimator
-from wfviz.imaging_circle import ImagingCircle, non_imaging_mask, resolve_circle
+from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
 
@@ -60,19 +60,14 @@ class GEWCTracker:
         self.horizon = HorizonTracker(c.horizon)
         self.bad = BadPixels(c.defects)
         self.motion = MotionEstimator() if c.tracking.compensate_motion else None
-        self.circle: ImagingCircle | None = None
-        self._mask: np.ndarray | None = None
+        self.imaging = ImagingMask(c.circle)
         self._region: np.ndarray | None = None
         self._zones: list[np.ndarray] | None = None
-        self._region_key: object = None
 
-    def _imaging_mask(self, image: np.ndarray) -> tuple[np.ndarray, bool]:
-        if self._mask is not None and self._mask.shape == image.shape:
-            return self._mask, False
-        cc = self.config.circle
-        self.circle = resolve_circle(image, cc)
-        self._mask = non_imaging_mask(image.shape, self.circle, cc.margin)
-        return self._mask, True
+    @property
+    def circle(self) -> ImagingCircle | None:
+        """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
+        return self.imaging.circle
 
     def _exclude_ground(self) -> bool:
         """Search only above the horizon: always, never, or (auto) in a fisheye sky view, i.e.
@@ -88,7 +83,7 @@ class GEWCTracker:
         lap = timer.lap
         raw, img = img, self.bad.clean(img)
         lap("defects")
-        mask, mask_changed = self._imaging_mask(img)
+        mask, mask_changed = self.imaging.update(img)
         valid = ~mask
         lap("mask")
         horizon, horizon_updated = self.horizon.update(img, valid)

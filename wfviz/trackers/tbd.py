@@ -21,7 +21,7 @@ from wfviz.config import TBDConfig
 from wfviz.detection import Detections
 from wfviz.frames import Frame
 from wfviz.horizon import HorizonTracker, search_region
-from wfviz.imaging_circle import non_imaging_mask, resolve_circle
+from wfviz.imaging_circle import ImagingMask
 from wfviz.tbd.filter import BankOutput, RegionFilter
 from wfviz.tbd.model import matched_filter, normalise
 from wfviz.trackers.base import FrameResult
@@ -122,6 +122,7 @@ class TBDTracker:
         self._next_id = 1
         self._count = 0
         self.horizon = HorizonTracker(self.config.horizon)
+        self.imaging = ImagingMask(self.config.circle)
         self._valid: np.ndarray | None = None
         self._search: np.ndarray | None = None
 
@@ -155,10 +156,9 @@ class TBDTracker:
         mode = c.regions.search
         if mode == "all" or (mode == "auto" and self._mode == "full"):
             return None
-        changed = False
-        if self._valid is None or self._valid.shape != img.shape:
-            self._valid = ~non_imaging_mask(img.shape, resolve_circle(img, c.circle), c.circle.margin)
-            changed = True
+        mask, changed = self.imaging.update(img)
+        if changed:
+            self._valid = ~mask
         horizon, updated = self.horizon.update(img, self._valid)
         if changed or updated or self._search is None:
             self._search = search_region(self._valid, horizon, c.horizon.margin)
