@@ -58,10 +58,10 @@ def main() -> int:
         if i % args.every and i != 1 and i != args.frames:
             return
         rss, peak = rss_mb()
-        kept = tracker.manager.tracks
+        kept = tracker.manager
         samples.append(dict(frame=frame.index, seconds=round(time.perf_counter() - t0, 1),
                             live=len(result.tracks), confirmed=sum(t.confirmed for t in result.tracks),
-                            kept=len(kept), history=sum(len(t.history) for t in kept),
+                            kept=len(kept), history=int(kept.history_len.sum()),
                             objects=len(gc.get_objects()), rss_mb=round(rss, 1), peak_mb=round(peak, 1)))
         s = samples[-1]
         print(f"frame {s['frame']:6d}  {s['seconds']:7.1f} s  live {s['live']:4d} (confirmed {s['confirmed']:3d})"

@@ -57,7 +57,7 @@ def test_confirmation_after_six_hits_and_deletion_after_three_misses():
     assert not any(e.kind == "deleted" for e in events)               # 2 misses: kept
     events = _run_from(mgr, frames, 10, 11)
     assert [e.kind for e in events] == ["deleted"]                    # 3rd consecutive miss
-    assert mgr.tracks == []
+    assert len(mgr) == 0
 
 
 def _run_from(mgr, frames, a, b):

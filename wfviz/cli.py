@@ -28,12 +28,14 @@ out = Console(soft_wrap=True)
 EXIT_BAD_INPUT = 2
 STATE = {"debug": False}
 
+ClipArg = Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder, .npy stack or synth:SCENARIO[:SEED] (a built-in scenario, generated lazily; see `wfviz synth --list`).")]
 TrackerOpt = Annotated[str, typer.Option("--tracker", help=f"Tracker: {', '.join(TRACKERS)}.")]
 ConfigOpt = Annotated[Optional[Path], typer.Option("--config", help="TOML config file (see `wfviz config`).")]
 StartOpt = Annotated[int, typer.Option("--start", min=0, help="First frame (0-based).")]
 StopOpt = Annotated[Optional[int], typer.Option("--stop", min=1, help="Stop before this frame.")]
 FpsOpt = Annotated[Optional[float], typer.Option("--fps", min=0.001, help="Override the clip's frame rate.")]
 ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log images every N frames.")]
+JpegOpt = Annotated[Optional[int], typer.Option("--jpeg-quality", min=1, max=100, help="Store 8-bit images as JPEG at this quality (smaller, lossy; default: lossless). 16-bit images stay lossless.")]
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
@@ -105,7 +107,8 @@ def _check_outputs(clip: Clip, *outputs: Path | None) -> None:
 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
-             stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0) -> RunSummary:
+             stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
+             jpeg_quality: int | None = None) -> RunSummary:
     _check_outputs(clip, recording, tracks)
     total = clip.n_frames
     if total is not None:
@@ -113,7 +116,8 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     options = None
     if recording is not None:
         options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
-                       trail_length=getattr(getattr(tracker.config, "tracking", None), "trail_length", 60))
+                       trail_length=getattr(getattr(tracker.config, "tracking", None), "trail_length", 60),
+                       jpeg_quality=jpeg_quality)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -174,7 +178,7 @@ def _main(debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks o
 @app.command()
 @_guarded
 def record(
-    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    clip: ClipArg,
     output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd).")] = None,
     tracks: Annotated[Optional[Path], typer.Option("--tracks", help="Tracks CSV (default: beside the recording).")] = None,
     tracker: TrackerOpt = "gewc",
@@ -184,6 +188,7 @@ def record(
     fps: FpsOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
+    jpeg_quality: JpegOpt = None,
     truth: TruthOpt = None,
     gate: GateOpt = 3.0,
     skip_bad_frames: SkipBadOpt = False,
@@ -197,14 +202,14 @@ def record(
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
-                       truth=truth_points, gate=gate)
+                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality)
     _report(summary, tracks, output)
 
 
 @app.command()
 @_guarded
 def track(
-    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    clip: ClipArg,
     tracks: Annotated[Path, typer.Option("--tracks", help="Tracks CSV to write.")],
     tracker: TrackerOpt = "gewc",
     config: ConfigOpt = None,
@@ -235,6 +240,7 @@ def demo(
     config: ConfigOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
+    jpeg_quality: JpegOpt = None,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.evaluate import read_truth
@@ -251,7 +257,8 @@ def demo(
     clip.write_truth_csv(truth)
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
-                       source=f"built-in demo (seed {seed}, {frames} frames)", truth=read_truth(truth))
+                       source=f"built-in demo (seed {seed}, {frames} frames)", truth=read_truth(truth),
+                       jpeg_quality=jpeg_quality)
     out.print(f"  truth:     {truth}", highlight=False)
     _report(summary, tracks, output)
 
@@ -336,7 +343,7 @@ def screenshot(
 @app.command("bench")
 @_guarded
 def bench_(
-    clip: Annotated[Path, typer.Argument(help="Video (.avi/.mp4), image folder or .npy stack.")],
+    clip: ClipArg,
     tracker: TrackerOpt = "gewc",
     config: ConfigOpt = None,
     start: StartOpt = 0,

@@ -45,7 +45,8 @@ DEFAULT_FPS = 20.0
 #: skipped without a warning.
 COMPANION_FILES = frozenset({"truth.csv", "meta.json"})
 SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
-             f"({' '.join(IMAGE_SUFFIXES)}) or a .npy stack")
+             f"({' '.join(IMAGE_SUFFIXES)}), a .npy stack or synth:SCENARIO")
+SYNTH_PREFIX = "synth:"
 
 LumaMode = Literal["auto", "raw", "expand", "bgr"]
 #: Codec pixel-format tags (``CAP_PROP_CODEC_PIXEL_FORMAT``) whose first plane is 8-bit luma.
@@ -82,13 +83,16 @@ class BadFrameError(ClipError):
 
 def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bool = False,
               nan_as_zero: bool = False) -> Clip:
-    """Open a video file, a folder of images or a .npy stack; ``fps`` overrides the source's.
+    """Open a video file, a folder of images, a .npy stack or ``synth:SCENARIO[:SEED]`` (a
+    built-in scenario generated lazily); ``fps`` overrides the source's.
 
     ``skip_bad_frames``: an undecodable image or video frame is skipped with a
     :class:`ClipWarning` (its index is left out, listed in ``clip.skipped``) instead of
     raising. ``nan_as_zero``: NaN/inf pixels of float frames become 0 (warned once) instead
     of raising.
     """
+    if str(path).startswith(SYNTH_PREFIX):
+        return synthetic_clip(str(path), fps)
     p = Path(path)
     if not p.exists():
         raise ClipError(f"{p}: no such file or folder")
@@ -100,6 +104,22 @@ def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bo
     if suffix == ".npy":
         return NpyClip(p, fps, nan_as_zero=nan_as_zero)
     raise ClipError(f"{p}: unsupported input; expected {SUPPORTED}")
+
+
+def synthetic_clip(spec: str, fps: float | None = None) -> Clip:
+    """``synth:NAME`` or ``synth:NAME:SEED``: a built-in scenario rendered lazily, frame by
+    frame (nothing written; ``--stop`` shortens it)."""
+    from wfviz.synth.scenarios import list_scenarios, make_scenario
+
+    name, _, seed = spec[len(SYNTH_PREFIX):].partition(":")
+    names = [i.name for i in list_scenarios()]
+    if name not in names:
+        raise ClipError(f"{spec}: unknown scenario '{name}' (available: {', '.join(names)})")
+    if seed and not seed.isdigit():
+        raise ClipError(f"{spec}: the seed must be a whole number >= 0, got '{seed}'")
+    if fps is not None:
+        raise ClipError(f"{spec}: --fps does not apply to a synthetic scenario (its rate is fixed)")
+    return make_scenario(name, seed=int(seed or 0))
 
 
 def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = MIN_SIDE) -> None:

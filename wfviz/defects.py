@@ -55,17 +55,20 @@ class BadPixels:
         if self.evidence is None or self.evidence.shape != raw.shape:
             self.evidence = np.zeros(raw.shape, dtype=np.float32)
         src = raw if raw.dtype in (np.uint8, np.uint16, np.float32) else raw.astype(np.float32)
-        dev = src.astype(np.float32) - cv2.medianBlur(src, 3).astype(np.float32)
+        dev = cv2.subtract(src, cv2.medianBlur(src, 3), dtype=cv2.CV_32F)
         w = raw.shape[1]
-        hot = (dev > threshold) & (dev >= self.cfg.spike_ratio * residual.astype(np.float32, copy=False))
-        seen = [np.flatnonzero(hot), np.flatnonzero(dev < -2.0 * threshold)]
+        # seen: a 0/1 mask of this frame's hot candidates (spike above threshold and above
+        # spike_ratio of the residual) and dead ones (more than 2 thresholds below the median)
+        res = residual if residual.dtype == np.float32 else residual.astype(np.float32)
+        seen = cv2.compare(dev, float(threshold), cv2.CMP_GT)
+        seen &= cv2.compare(dev, np.multiply(res, np.float32(self.cfg.spike_ratio)), cv2.CMP_GE)
+        seen |= cv2.compare(dev, -2.0 * float(threshold), cv2.CMP_LT)
         if len(self.flagged):  # flagged pixels were cleaned before detection: test them raw
             r, c = self.flagged[:, 0], self.flagged[:, 1]
-            still = np.abs(dev[r, c]) > threshold
-            seen.append(r[still] * w + c[still])
-        ev = self.evidence
-        ev *= 1.0 - self.cfg.rate
-        ev.ravel()[np.unique(np.concatenate(seen))] += self.cfg.rate
+            seen[r, c] |= (np.abs(dev[r, c]) > threshold).astype(np.uint8) * 255
+        ev = self.evidence  # e <- (1 - rate) e + rate [seen], in one pass
+        cv2.addWeighted(ev, 1.0 - self.cfg.rate, seen, self.cfg.rate / 255.0, 0.0, dst=ev,
+                        dtype=cv2.CV_32F)
         idx = np.flatnonzero(ev >= self.cfg.flag_level)
         new = np.column_stack([idx // w, idx % w])
         changed = new.shape != self.flagged.shape or not np.array_equal(new, self.flagged)

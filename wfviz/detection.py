@@ -39,11 +39,16 @@ class Detections:
 
 def adaptive_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float) -> float:
     """Threshold = mean + k * std of the residual inside ``region``."""
-    mask = region.astype(np.uint8)
-    if not mask.any():
+    mask = np.asarray(region, dtype=bool).view(np.uint8)
+    n = cv2.countNonZero(mask)
+    if not n:
         return float("inf")
-    mean, std = cv2.meanStdDev(residual.astype(np.float32, copy=False), mask=mask)
-    return float(mean[0, 0] + k_sigma * max(std[0, 0], 1e-6))
+    # sums in double precision: twice as fast as cv2.meanStdDev with a mask
+    inside = cv2.multiply(residual, mask, dtype=cv2.CV_32F) if residual.dtype != np.float64 \
+        else residual * mask
+    mean = cv2.sumElems(inside)[0] / n
+    var = cv2.norm(inside, cv2.NORM_L2SQR) / n - mean * mean
+    return float(mean + k_sigma * max(np.sqrt(max(var, 0.0)), 1e-6))
 
 
 def local_stats(residual: np.ndarray, region: np.ndarray, window: int) -> tuple[np.ndarray, np.ndarray]:
@@ -98,14 +103,16 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     ``zones`` (masks partitioning the region, e.g. sky and ground) each get their own global
     threshold, so a cluttered zone does not raise the bar in a clean one.
     """
-    res = residual.astype(np.float32, copy=False)
+    res = residual
     if cfg.mode == "global" and zones:
+        res = residual.astype(np.float32, copy=False)
         thr_map = np.full(res.shape, np.inf, dtype=np.float32)
         for z in zones:
             thr_map[z] = adaptive_threshold(residual, z, cfg.k_sigma)
         thr = adaptive_threshold(residual, zones[0], cfg.k_sigma)
         excess = res - thr_map
     elif cfg.mode == "local":
+        res = residual.astype(np.float32, copy=False)
         lmean, lstd = local_stats(res, region, cfg.local_window)
         thr_map: np.ndarray | None = lmean + cfg.k_sigma * lstd
         thr = float(np.median(thr_map[region])) if region.any() else float("inf")
@@ -113,9 +120,13 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     else:
         thr_map = None
         thr = adaptive_threshold(residual, region, cfg.k_sigma)
-        excess = res - thr
-    mask = (excess > 0) & region
-    binary = mask.view(np.uint8)
+        excess = None  # one threshold: compare in the residual's own type, no float copy
+    if excess is None:
+        src = residual if residual.dtype in (np.uint8, np.uint16, np.float32) else residual.astype(np.float32)
+        binary = cv2.compare(src, float(thr), cv2.CMP_GT) if np.isfinite(thr) else np.zeros(src.shape, np.uint8)
+        binary &= np.asarray(region, dtype=bool).view(np.uint8)  # 255 & 1: a 0/1 mask
+    else:
+        binary = ((excess > 0) & region).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
         k = 2 * cfg.merge_gap + 1
@@ -124,20 +135,21 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         labels *= binary  # keep labels on the pixels above threshold only
     else:
         n, labels = cv2.connectedComponents(binary, connectivity=8, ltype=cv2.CV_32S)
-    idx = np.nonzero(mask.ravel())[0]
+    idx = np.flatnonzero(binary.view(bool))  # bool: numpy's fast path
     lab = labels.ravel()[idx]
-    val = excess.ravel()[idx]
+    raw = res.ravel()[idx].astype(np.float32)
+    val = raw - np.float32(thr) if excess is None else excess.ravel()[idx]
     w = residual.shape[1]
     ix, iy = idx % w, idx // w
     stats = _component_stats(lab, ix, iy, n)
     xs, ys = ix.astype(np.float64), iy.astype(np.float64)
     flux = np.bincount(lab, weights=val, minlength=n)[1:]
-    total = np.bincount(lab, weights=res.ravel()[idx], minlength=n)[1:]
+    total = np.bincount(lab, weights=raw, minlength=n)[1:]
     safe = np.where(flux > 0, flux, 1.0)
     cx = np.bincount(lab, weights=val * xs, minlength=n)[1:] / safe
     cy = np.bincount(lab, weights=val * ys, minlength=n)[1:] / safe
     peak = np.zeros(n)
-    np.maximum.at(peak, lab, res.ravel()[idx])
+    np.maximum.at(peak, lab, raw)
     peak = peak[1:]
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = np.nonzero((area >= cfg.min_area) & (area <= cfg.max_area))[0]

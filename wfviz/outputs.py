@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import csv
 import os
 from pathlib import Path
 from typing import TextIO
@@ -52,14 +51,13 @@ class TracksWriter:
     def __init__(self, path: Path) -> None:
         self.path = path
         self._fh: TextIO = open(part_path(path), "w", newline="", encoding="utf-8")
-        self._csv = csv.writer(self._fh)
-        self._csv.writerow(TRACKS_HEADER)
+        self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
 
     def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
         """Append the rows of one frame."""
-        self._csv.writerows(
-            (frame, t.track_id, f"{t.x:.3f}", f"{t.y:.3f}", int(t.confirmed),
-             f"{t.vx:.3f}", f"{t.vy:.3f}", int(t.meeting)) for t in tracks)
+        self._fh.write("".join(
+            f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
+            for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
 
     def close(self) -> None:
         """Flush, close and rename into place."""

@@ -4,12 +4,15 @@ Composable steps, called in order each frame: :meth:`TrackManager.predict` (Kalm
 prediction, gates, meeting mode), :meth:`TrackManager.associate` (global assignment of
 detections to tracks inside their gates), :meth:`TrackManager.update` (Kalman updates,
 hit/miss counting, births and deletions). Positions are (x = column, y = row) in pixels.
+
+The live tracks are held as arrays, one row per track (struct of arrays): a frame costs a few
+numpy calls whatever the number of tracks, which matters with tens of tentative tracks started
+by noise every frame.
 """
 
 from __future__ import annotations
 
-from collections import deque
-from dataclasses import dataclass, field
+from dataclasses import dataclass
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -57,104 +60,153 @@ class TrackEvent:
     message: str
 
 
-@dataclass
-class _Track:
-    track_id: int
-    x: np.ndarray
-    P: np.ndarray
-    hits: int = 1
-    misses: int = 0
-    confirmed: bool = False
-    meeting: bool = False
-    meeting_frames: int = 0
-    score_sum: float = 0.0  # sum of the significance of the hits
-    origin: np.ndarray | None = None  # birth position, moved with the camera (scene-fixed)
-    history: deque = field(default_factory=lambda: deque(maxlen=64))  # reported (x, y)
-    velocities: list = field(default_factory=list)  # filtered (vx, vy) before meeting, last 3
-    innovation: np.ndarray | None = None
-
-
-def extrapolate(history: list[tuple[float, float]] | deque) -> tuple[float, float]:
+def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float, float]:
     """Eq. 15 as read in METHODS.md: s(k) = s(k-1) + (s(k-1) - s(k-3)) / 2."""
     s1, s3 = np.asarray(history[-1]), np.asarray(history[-3])
     s = s1 + (s1 - s3) / 2.0
     return float(s[0]), float(s[1])
 
 
-def _meeting_state(t: "_Track", how: str) -> np.ndarray:
-    """Next state of a track in meeting mode: linear extrapolation of its own motion."""
-    last = t.history[-1]
-    if how == "kalman":  # the paper's prose: the target's velocities at k-1, k-2, k-3
-        v = np.mean(t.velocities[-3:], axis=0) if t.velocities else t.x[2:]
-        ex, ey = last[0] + v[0], last[1] + v[1]
-    else:
-        ex, ey = extrapolate(t.history)
-    return np.array([ex, ey, ex - last[0], ey - last[1]])
+HISTORY = 3  # reported positions kept per track: eq. 15 reads s(k-1) and s(k-3)
 
 
 class TrackManager:
-    """Tracks with CV Kalman filters, confirmed after m hits, deleted after n misses."""
+    """Tracks with CV Kalman filters, confirmed after m hits, deleted after n misses.
+
+    Per-track state lives in arrays indexed like the predictions of the frame: ``ids``,
+    ``x`` (N, 4), ``P`` (N, 4, 4), hit/miss counters, flags, the last :data:`HISTORY`
+    reported positions and the last three filtered velocities.
+    """
 
     def __init__(self, kcfg: KalmanConfig, tcfg: TrackingConfig) -> None:
         self.kcfg, self.tcfg = kcfg, tcfg
         self.model = kalman.CVModel.make(kcfg.q, kcfg.r)
         self.P0 = kalman.initial_covariance(kcfg.r, kcfg.initial_velocity_std)
-        self.tracks: list[_Track] = []
         self._next_id = 1
         self._frame = 0
         self._events: list[TrackEvent] = []
+        self._resize(0)
+        self._preds: list[Prediction] | None = None
+        self._pred_arrays: tuple[np.ndarray, ...] = ()
+
+    def _resize(self, n: int) -> None:
+        self.ids = np.zeros(n, dtype=np.int64)
+        self.x = np.zeros((n, 4))
+        self.P = np.zeros((n, 4, 4))
+        self.hits = np.zeros(n, dtype=np.int64)
+        self.misses = np.zeros(n, dtype=np.int64)
+        self.confirmed = np.zeros(n, dtype=bool)
+        self.meeting = np.zeros(n, dtype=bool)
+        self.meeting_frames = np.zeros(n, dtype=np.int64)
+        self.score_sum = np.zeros(n)                 # sum of the significance of the hits
+        self.origin = np.zeros((n, 2))               # birth position, moved with the camera
+        self.history = np.zeros((n, HISTORY, 2))     # last reported (x, y), oldest first
+        self.history_len = np.zeros(n, dtype=np.int64)
+        self.velocities = np.zeros((n, 3, 2))        # filtered (vx, vy) of the last updates
+        self.velocities_len = np.zeros(n, dtype=np.int64)
+        self.innovation = np.full((n, 2), np.nan)    # NaN: not updated this frame
+        self._S_inv = np.zeros((n, 2, 2))            # inverse innovation covariances (predict)
+
+    _FIELDS = ("ids", "x", "P", "hits", "misses", "confirmed", "meeting", "meeting_frames", "score_sum",
+               "origin", "history", "history_len", "velocities", "velocities_len", "innovation", "_S_inv")
+
+    def __len__(self) -> int:
+        return int(self.ids.size)
+
+    @property
+    def track_ids(self) -> list[int]:
+        """Ids of the live tracks, in row order."""
+        return self.ids.tolist()
+
+    def velocity(self, i: int) -> np.ndarray:
+        """Filtered velocity (vx, vy) of the track in row ``i``."""
+        return self.x[i, 2:].copy()
+
+    def restart(self, track_id: int, state: np.ndarray) -> None:
+        """Restart a track's filter at ``state`` (x, y, vx, vy) with P = P₀."""
+        rows = np.nonzero(self.ids == track_id)[0]
+        if rows.size:
+            self.x[rows[0]] = state
+            self.P[rows[0]] = self.P0
 
     def shift(self, dx: float, dy: float) -> None:
-        """Move every track (state and history) by the camera's image motion (dx, dy)."""
-        for t in self.tracks:
-            t.x[0] += dx
-            t.x[1] += dy
-            t.origin = t.origin + (dx, dy)
-            t.history = deque(((x + dx, y + dy) for x, y in t.history), maxlen=t.history.maxlen)
+        """Move every track (state, birth point and history) by the camera's image motion."""
+        d = np.array([dx, dy])
+        self.x[:, :2] += d
+        self.origin += d
+        self.history += d
+
+    def _push_history(self, rows: np.ndarray, xy: np.ndarray) -> None:
+        self.history[rows, :-1] = self.history[rows, 1:]
+        self.history[rows, -1] = xy
+        self.history_len[rows] = np.minimum(self.history_len[rows] + 1, HISTORY)
 
     # -- predict --------------------------------------------------------------------------
+    def _meeting_state(self, i: int) -> np.ndarray:
+        """Next state of track ``i`` in meeting mode: linear extrapolation of its own motion."""
+        last = self.history[i, -1]
+        if self.tcfg.meeting_velocity == "kalman":  # the paper's prose: velocities at k-1..k-3
+            k = int(self.velocities_len[i])
+            v = np.mean(self.velocities[i, 3 - k:], axis=0) if k else self.x[i, 2:]
+            ex, ey = last[0] + v[0], last[1] + v[1]
+        else:
+            ex, ey = extrapolate(self.history[i])
+        return np.array([ex, ey, ex - last[0], ey - last[1]])
+
     def predict(self, frame: int) -> list[Prediction]:
         """Advance every track to ``frame``; tracks closer than the safety distance meet."""
         self._frame, self._events = frame, []
-        if not self.tracks:
+        self._preds = None
+        if not len(self):
             return []
-        x = np.stack([t.x for t in self.tracks])
-        P = np.stack([t.P for t in self.tracks])
-        x, P = kalman.predict(x, P, self.model)
-        for t, xi, Pi in zip(self.tracks, x, P):
-            t.x, t.P = xi, Pi
-            if t.meeting and len(t.history) >= 3:
-                t.x = _meeting_state(t, self.tcfg.meeting_velocity)
+        self.x, self.P = kalman.predict(self.x, self.P, self.model)
+        for i in np.nonzero(self.meeting & (self.history_len >= 3))[0]:
+            self.x[i] = self._meeting_state(i)
         self._update_meeting()
-        S = kalman.innovation_covariance(np.stack([t.P for t in self.tracks]), self.model)
+        S = kalman.innovation_covariance(self.P, self.model)
+        self._S_inv = np.linalg.inv(S)
         half = np.clip(self.kcfg.gate_sigma * np.sqrt(S[:, [0, 1], [0, 1]]),
                        self.kcfg.gate_min, self.kcfg.gate_max)
-        return [Prediction(t.track_id, float(t.x[0]), float(t.x[1]), float(h[0]), float(h[1]),
-                           t.confirmed, t.meeting, float(np.trace(t.P)))
-                for t, h in zip(self.tracks, half)]
+        xy = self.x[:, :2].copy()
+        trace = np.trace(self.P, axis1=1, axis2=2)
+        preds = [Prediction(*row) for row in zip(
+            self.ids.tolist(), *xy.T.tolist(), *half.T.tolist(), self.confirmed.tolist(),
+            self.meeting.tolist(), trace.tolist())]
+        self._preds = preds
+        self._pred_arrays = (xy, half, self.confirmed.copy(), self.meeting.copy())
+        return preds
 
     def _update_meeting(self) -> None:
-        conf = [t for t in self.tracks if t.confirmed]
-        close: set[int] = set()
-        if len(conf) > 1:
-            pos = np.array([t.x[:2] for t in conf])
+        conf = np.nonzero(self.confirmed)[0]
+        close = np.zeros(len(self), dtype=bool)
+        if conf.size > 1:
+            pos = self.x[conf, :2]
             d = np.hypot(*(pos[:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
             np.fill_diagonal(d, np.inf)
-            close = {conf[i].track_id for i in np.nonzero((d < self.tcfg.safety_distance).any(axis=1))[0]}
-        for t in conf:
-            if t.track_id in close and not t.meeting and len(t.history) >= 3:
-                t.meeting, t.meeting_frames = True, 0
-                t.x = _meeting_state(t, self.tcfg.meeting_velocity)
-                self._event("meeting_on", t, "within the safety distance: Kalman updates stop, "
+            close[conf] = (d < self.tcfg.safety_distance).any(axis=1)
+        for i in conf[close[conf] | self.meeting[conf]]:
+            if close[i] and not self.meeting[i] and self.history_len[i] >= 3:
+                self.meeting[i], self.meeting_frames[i] = True, 0
+                self.x[i] = self._meeting_state(i)
+                self._event("meeting_on", i, "within the safety distance: Kalman updates stop, "
                                              "linear extrapolation (eq. 15)")
-            elif t.meeting:
-                t.meeting_frames += 1
-                expired = t.meeting_frames > self.tcfg.max_meeting_frames
-                if t.track_id not in close or expired:
-                    t.meeting = False
-                    t.P = self.P0.copy()  # re-initialise the filter at the extrapolated state
+            elif self.meeting[i]:
+                self.meeting_frames[i] += 1
+                expired = self.meeting_frames[i] > self.tcfg.max_meeting_frames
+                if not close[i] or expired:
+                    self.meeting[i] = False
+                    self.P[i] = self.P0  # re-initialise the filter at the extrapolated state
                     why = "meeting lasted too long" if expired else "separated"
-                    self._event("meeting_off", t, f"{why}: filter re-initialised")
+                    self._event("meeting_off", i, f"{why}: filter re-initialised")
+
+    def _arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:
+        """(centres, half sizes, confirmed, meeting) of ``preds`` (cached for predict's own)."""
+        if preds is self._preds:
+            return self._pred_arrays
+        return (np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2),
+                np.array([[p.half_w, p.half_h] for p in preds], dtype=np.float64).reshape(-1, 2),
+                np.array([p.confirmed for p in preds], dtype=bool),
+                np.array([p.meeting for p in preds], dtype=bool))
 
     # -- associate ------------------------------------------------------------------------
     def associate(self, preds: list[Prediction], xy: np.ndarray) -> dict[int, int]:
@@ -167,43 +219,42 @@ class TrackManager:
         """
         if not preds or len(xy) == 0:
             return {}
-        S_inv = np.linalg.inv(kalman.innovation_covariance(np.stack([t.P for t in self.tracks]), self.model))
-        centres = np.array([[p.x, p.y] for p in preds])
-        halves = np.array([[p.half_w, p.half_h] for p in preds])
+        centres, halves, confirmed, meeting = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
-        cost = np.einsum("tdi,tij,tdj->td", diff, S_inv, diff)
         result: dict[int, int] = {}
         used = np.zeros(len(xy), dtype=bool)
-        confirmed_gates = inside[[i for i, p in enumerate(preds) if p.confirmed]].any(axis=0)
+        confirmed_gates = inside[confirmed].any(axis=0)
         for want_confirmed in (True, False):
-            rows = [i for i, p in enumerate(preds) if p.confirmed == want_confirmed and not p.meeting]
-            if not rows:
+            rows = np.nonzero((confirmed == want_confirmed) & ~meeting)[0]
+            if not rows.size:
                 continue
             ok = inside[rows] & ~used[None, :]
             if not want_confirmed:  # a confirmed track's gate is off limits to tentative ones
                 ok &= ~confirmed_gates[None, :]
-            big = 1e9
-            c = np.where(ok, cost[rows], big)
             keep_cols = np.nonzero(ok.any(axis=0))[0]
             if keep_cols.size == 0:
                 continue
-            ri, ci = linear_sum_assignment(c[:, keep_cols])
+            r, c = rows, keep_cols
+            d = diff[r[:, None], c[None, :]]
+            cost = np.einsum("tdi,tij,tdj->td", d, self._S_inv[r], d)  # squared Mahalanobis
+            big = 1e9
+            cmat = np.where(ok[:, keep_cols], cost, big)
+            ri, ci = linear_sum_assignment(cmat)
             for r_, c_ in zip(ri, ci):
-                if c[r_, keep_cols[c_]] < big:
-                    result[rows[r_]] = int(keep_cols[c_])
-                    used[keep_cols[c_]] = True
+                if cmat[r_, c_] < big:
+                    result[int(r[r_])] = int(c[c_])
+                    used[c[c_]] = True
         return result
 
     def claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
         """Detections inside a confirmed track's gate: they never start new tracks."""
         if len(xy) == 0 or not preds:
             return np.zeros(len(xy), dtype=bool)
-        conf = [p for p in preds if p.confirmed]
-        if not conf:
+        centres, halves, confirmed, _ = self._arrays(preds)
+        if not confirmed.any():
             return np.zeros(len(xy), dtype=bool)
-        c = np.array([[p.x, p.y] for p in conf])
-        h = np.array([[p.half_w, p.half_h] for p in conf])
+        c, h = centres[confirmed], halves[confirmed]
         return (np.abs(xy[None, :, :] - c[:, None, :]) <= h[:, None, :]).all(axis=2).any(axis=0)
 
     # -- update ---------------------------------------------------------------------------
@@ -218,68 +269,87 @@ class TrackManager:
         (including meeting events from :meth:`predict`).
         """
         scores = scores or {}
-        idx = sorted(measurements)
-        for t in self.tracks:
-            t.innovation = None
-        if idx:
-            x = np.stack([self.tracks[i].x for i in idx])
-            P = np.stack([self.tracks[i].P for i in idx])
-            z = np.array([measurements[i] for i in idx], dtype=np.float64)
-            x, P, nu = kalman.update(x, P, z, self.model)
-            for i, xi, Pi, ni in zip(idx, x, P, nu):
-                t = self.tracks[i]
-                t.x, t.P, t.innovation = xi, Pi, ni
-                t.velocities = (t.velocities + [xi[2:].copy()])[-3:]
-        survivors: list[_Track] = []
-        for i, t in enumerate(self.tracks):
-            if i in measurements:
-                t.hits += 1
-                t.misses = 0
-                t.score_sum += scores.get(i, 0.0)
-                t.history.append(measurements[i])
-                need = self.tcfg.confirm_significance
-                moved = float(np.hypot(*(np.asarray(measurements[i]) - t.origin)))
-                if (not t.confirmed and t.hits >= self.tcfg.confirm_hits
-                        and (need <= 0 or t.score_sum / t.hits >= need)
-                        and moved >= self.tcfg.min_displacement):
-                    t.confirmed = True
-                    why = f", mean significance {t.score_sum / t.hits:.1f}" if need > 0 else ""
-                    why += f", moved {moved:.1f} px" if self.tcfg.min_displacement > 0 else ""
-                    self._event("confirmed", t, f"confirmed after {t.hits} hits{why}")
-            elif t.meeting:
-                t.history.append((float(t.x[0]), float(t.x[1])))
+        tc = self.tcfg
+        n = len(self)
+        self.innovation[:] = np.nan
+        idx = np.array(sorted(measurements), dtype=np.int64)
+        z = np.array([measurements[i] for i in idx.tolist()], dtype=np.float64).reshape(-1, 2)
+        measured = np.zeros(n, dtype=bool)
+        measured[idx] = True
+        if idx.size:
+            x, P, nu = kalman.update(self.x[idx], self.P[idx], z, self.model)
+            self.x[idx], self.P[idx], self.innovation[idx] = x, P, nu
+            self.velocities[idx, :-1] = self.velocities[idx, 1:]
+            self.velocities[idx, -1] = x[:, 2:]
+            self.velocities_len[idx] = np.minimum(self.velocities_len[idx] + 1, 3)
+            self.hits[idx] += 1
+            self.misses[idx] = 0
+            self.score_sum[idx] += np.array([scores.get(i, 0.0) for i in idx.tolist()])
+        # history: the measurement, or the (coasting / extrapolated) state
+        reported = self.x[:, :2].copy()
+        reported[idx] = z
+        self._push_history(np.arange(n), reported)
+        missed = ~measured & ~self.meeting
+        self.misses[missed] += 1
+        moved = np.hypot(reported[:, 0] - self.origin[:, 0], reported[:, 1] - self.origin[:, 1])
+        need = tc.confirm_significance
+        mean_score = self.score_sum / np.maximum(self.hits, 1)
+        confirm = (measured & ~self.confirmed & (self.hits >= tc.confirm_hits)
+                   & ((need <= 0) | (mean_score >= need)) & (moved >= tc.min_displacement))
+        delete = missed & (self.misses >= tc.max_misses)
+        for i in np.nonzero(confirm | delete)[0].tolist():
+            if confirm[i]:
+                self.confirmed[i] = True
+                why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
+                why += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
+                self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why}")
             else:
-                t.misses += 1
-                t.history.append((float(t.x[0]), float(t.x[1])))
-                if t.misses >= self.tcfg.max_misses:
-                    self._event("deleted", t, f"deleted after {t.misses} consecutive misses "
-                                              f"({'confirmed' if t.confirmed else 'tentative'}, {t.hits} hits)")
-                    continue
-            survivors.append(t)
-        self.tracks = survivors
-        births = np.asarray(births, dtype=np.float64).reshape(-1, 2)
-        bscore = np.zeros(len(births)) if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
-        for (bx, by), sc in zip(births, bscore):
-            t = _Track(self._next_id, np.array([bx, by, 0.0, 0.0]), self.P0.copy(), score_sum=float(sc),
-                       origin=np.array([bx, by]))
-            t.history.append((float(bx), float(by)))
-            self._next_id += 1
-            self.tracks.append(t)
-            self._event("born", t, f"tentative track started at ({bx:.1f}, {by:.1f})")
+                self._event("deleted", i, f"deleted after {self.misses[i]} consecutive misses "
+                                          f"({'confirmed' if self.confirmed[i] else 'tentative'}, "
+                                          f"{self.hits[i]} hits)")
+        if delete.any():
+            keep = ~delete
+            for name in self._FIELDS:
+                setattr(self, name, getattr(self, name)[keep])
+        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores)
         return self._events
+
+    def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None) -> None:
+        k = len(births)
+        if not k:
+            return
+        first = self._next_id
+        self._next_id += k
+        new = TrackManager.__new__(TrackManager)
+        TrackManager._resize(new, k)
+        new.ids = np.arange(first, first + k, dtype=np.int64)
+        new.x[:, :2] = births
+        new.P[:] = self.P0
+        new.hits[:] = 1
+        new.score_sum[:] = 0.0 if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
+        new.origin[:] = births
+        new.history[:, -1] = births
+        new.history_len[:] = 1
+        for name in self._FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), getattr(new, name)]))
+        for (bx, by), tid in zip(births.tolist(), new.ids.tolist()):
+            self._events.append(TrackEvent(self._frame, "born", tid,
+                                           f"track {tid} tentative track started at ({bx:.1f}, {by:.1f})"))
 
     def states(self) -> list[TrackState]:
         """Snapshot of every live track; position = last reported (measurement when present)."""
-        out = []
-        for t in self.tracks:
-            x, y = t.history[-1]
-            out.append(TrackState(t.track_id, float(x), float(y), float(t.x[2]), float(t.x[3]),
-                                  t.confirmed, t.meeting, t.hits, t.misses))
-        return out
+        if not len(self):
+            return []
+        last = self.history[:, -1]
+        return [TrackState(*row) for row in zip(
+            self.ids.tolist(), *last.T.tolist(), *self.x[:, 2:].T.tolist(), self.confirmed.tolist(),
+            self.meeting.tolist(), self.hits.tolist(), self.misses.tolist())]
 
     def innovations(self) -> dict[int, np.ndarray]:
         """{track_id: innovation (2,)} for the tracks updated this frame."""
-        return {t.track_id: t.innovation for t in self.tracks if t.innovation is not None}
+        rows = np.nonzero(~np.isnan(self.innovation[:, 0]))[0]
+        return {int(self.ids[i]): self.innovation[i].copy() for i in rows}
 
-    def _event(self, kind: str, t: _Track, message: str) -> None:
-        self._events.append(TrackEvent(self._frame, kind, t.track_id, f"track {t.track_id} {message}"))
+    def _event(self, kind: str, i: int, message: str) -> None:
+        tid = int(self.ids[i])
+        self._events.append(TrackEvent(self._frame, kind, tid, f"track {tid} {message}"))

@@ -6,7 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import DETECTION_COLOR, Recorder, log_geometry, track_color
+from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, log_geometry, track_color, track_colors
 from wfviz.trackers.fusion import FusionResult
 
 LOST_COLOR = (255, 80, 80, 200)
@@ -32,7 +32,7 @@ class FusionRecorder(Recorder):
         rec = self.rec
         log_geometry(self.rec, result)
         if images:
-            rec.log("suppressed/image", rr.Image(result.suppressed))
+            self.image("suppressed/image", result.suppressed)
         f, n = result.features, len(result.features)
         phi = np.full(n, np.nan)
         cost = np.full(n, np.nan)
@@ -48,28 +48,29 @@ class FusionRecorder(Recorder):
         rec.log("camera/rects", rr.LineStrips2D(
             [np.vstack([r, r[:1]]) for r in f.rects], colors=colors, radii=0.3))
         m = result.matches
+        ids = [x.track_id for x in m]
         rec.log("camera/measurements", rr.Points2D(
-            [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],
-            colors=[track_color(x.track_id) for x in m], radii=0.5, show_labels=False))
+            np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
+            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, show_labels=False))
         a = np.linspace(0, 2 * np.pi, 73)
         r = result.recover_radius
         lost = result.lost if result.global_detection else ()
         rec.log("camera/recovery", rr.LineStrips2D(
             [np.column_stack([p.x + r * np.cos(a), p.y + r * np.sin(a)]) for p in lost],
-            class_ids=[p.track_id for p in lost], colors=LOST_COLOR, radii=0.4))
-        rec.log("detection/global", rr.Scalars(1.0 if result.global_detection else 0.0))
+            class_ids=class_ids([p.track_id for p in lost]), colors=LOST_COLOR, radii=0.4))
+        self.scalar("detection/global", 1.0 if result.global_detection else 0.0)
         if result.global_detection and not any(e.kind == "redetect" for e in result.events):
-            rec.log("log", rr.TextLog(f"global detection ({result.global_reason}): "
-                                      f"{len(result.detections)} candidates", level="DEBUG"))
+            self.text(f"global detection ({result.global_reason}): "
+                      f"{len(result.detections)} candidates", level="DEBUG")
         confirmed = {t.track_id for t in result.tracks if t.confirmed}
         for x in m:
             if x.track_id in confirmed:
-                rec.log(f"fusion/{x.track_id}/phi", rr.Scalars(x.phi))
-                rec.log(f"fusion/{x.track_id}/cost", rr.Scalars(x.cost))
+                self.scalar(f"fusion/{x.track_id}/phi", x.phi)
+                self.scalar(f"fusion/{x.track_id}/cost", x.cost)
         for tid, nu in result.innovations.items():
             if tid in confirmed:
-                rec.log(f"kalman/{tid}/innovation", rr.Scalars(float(np.hypot(*nu))))
+                self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
         for p in result.predictions:
             if p.confirmed:
-                rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))
+                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
 

@@ -6,7 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import Recorder, log_geometry, track_color
+from wfviz.record.recorder import Recorder, bar_chart, class_ids, log_geometry, track_color, track_colors
 from wfviz.trackers.gewc import GEWCResult
 
 
@@ -28,22 +28,23 @@ class GEWCRecorder(Recorder):
         rec = self.rec
         log_geometry(rec, result)
         if images:
-            rec.log("suppressed/image", rr.Image(result.suppressed))
+            self.image("suppressed/image", result.suppressed)
         if result.camera_shift is not None:
-            rec.log("registration/dx", rr.Scalars(result.camera_shift[0]))
-            rec.log("registration/dy", rr.Scalars(result.camera_shift[1]))
+            self.scalar("registration/dx", result.camera_shift[0])
+            self.scalar("registration/dy", result.camera_shift[1])
         m = result.measurements
+        ids = [x.track_id for x in m]
         rec.log("camera/centroids", rr.Points2D(
-            [[x.x, x.y] for x in m] if m else np.zeros((0, 2)), class_ids=[x.track_id for x in m],
-            colors=[track_color(x.track_id) for x in m], radii=0.5, show_labels=False))
+            np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
+            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5,
+            show_labels=False))
         confirmed = {t.track_id for t in result.tracks if t.confirmed}
         for x in m:
             if x.track_id in confirmed:
-                rec.log(f"gewc/{x.track_id}", rr.BarChart(np.asarray(x.weights, dtype=np.float64),
-                                                          color=track_color(x.track_id)))
+                rec.log(f"gewc/{x.track_id}", bar_chart(x.weights, track_color(x.track_id)))
         for tid, nu in result.innovations.items():
             if tid in confirmed:
-                rec.log(f"kalman/{tid}/innovation", rr.Scalars(float(np.hypot(*nu))))
+                self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
         for p in result.predictions:
             if p.confirmed:
-                rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))
+                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)

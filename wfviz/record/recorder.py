@@ -3,13 +3,18 @@
 from __future__ import annotations
 
 import colorsys
+import functools
+import warnings
 from collections import deque
 from pathlib import Path
 
+import cv2
 import numpy as np
+import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
+from wfviz.clip import ClipNote
 from wfviz.evaluate import FrameErrors
 from wfviz.frames import Frame
 from wfviz.trackers.base import FrameResult
@@ -23,6 +28,7 @@ EVENT_LEVELS = {"born": "DEBUG", "confirmed": "INFO", "deleted": "WARN",
                 "meeting_on": "INFO", "meeting_off": "INFO"}  # deleting a tentative track: DEBUG
 
 
+@functools.lru_cache(maxsize=8192)
 def track_color(track_id: int) -> tuple[int, int, int]:
     """A stable, well-separated colour for a track id (golden-ratio hue steps)."""
     h = (track_id * 0.618033988749895) % 1.0
@@ -30,7 +36,63 @@ def track_color(track_id: int) -> tuple[int, int, int]:
     return int(r * 255), int(g * 255), int(b * 255)
 
 
+def class_ids(track_ids: list[int]) -> np.ndarray:
+    """Rerun class ids (16-bit) of track ids: the id itself up to 65 535, then wrapping
+    (1..65 535), so a long clip's ids stay valid; colours and labels are logged explicitly."""
+    return ((np.asarray(track_ids, dtype=np.int64).reshape(-1) - 1) % 65535 + 1).astype(np.uint16)
+
+
+def track_colors(ids: list[int], confirmed: list[bool] | None = None) -> np.ndarray:
+    """(N, 4) uint8 RGBA: each track's colour, ``TENTATIVE_COLOR`` where not confirmed.
+    (Arrays, not lists of tuples: rerun converts them 30x faster.)"""
+    out = np.empty((len(ids), 4), dtype=np.uint8)
+    for k, i in enumerate(ids):
+        out[k] = (*track_color(i), 255) if confirmed is None or confirmed[k] else TENTATIVE_COLOR
+    return out
+
+
 MASK_COLOR = (255, 0, 255, 70)
+
+
+class _Batch:
+    """A ready Arrow array as a Rerun component batch."""
+
+    def __init__(self, array: pa.Array) -> None:
+        self._array = array
+
+    def as_arrow_array(self) -> pa.Array:
+        return self._array
+
+
+@functools.lru_cache(maxsize=1)
+def _bar_chart_template() -> tuple:
+    """Descriptors and Arrow types of ``rr.BarChart`` (values as F64 tensor, colour)."""
+    ref = list(rr.BarChart(np.zeros(2), color=(0, 0, 0)).as_component_batches())
+    struct = ref[0].as_arrow_array().type
+    union = struct.field("buffer").type
+    names = [union.field(i).name for i in range(union.num_fields)]
+    empty = [pa.array([], type=union.field(i).type) for i in range(union.num_fields)]
+    return (ref[0].component_descriptor(), ref[1].component_descriptor(), struct, union, names,
+            list(union.type_codes), empty, names.index("F64"))
+
+
+def bar_chart(values: np.ndarray, color: tuple[int, int, int]) -> list[rr.DescribedComponentBatch]:
+    """The component batches of ``rr.BarChart(values, color=color)`` (1-D float64 values),
+    built straight in Arrow: the same data, about 10x faster than Rerun's tensor converter,
+    which matters with one bar chart per confirmed track per frame."""
+    desc, color_desc, struct, union, names, codes, empty, f64 = _bar_chart_template()
+    v = np.ascontiguousarray(values, dtype=np.float64).ravel()
+    children = list(empty)
+    children[f64] = pa.ListArray.from_arrays(pa.array([0, len(v)], pa.int32()), pa.array(v),
+                                             type=union.field(f64).type)
+    buffer = pa.UnionArray.from_dense(pa.array([codes[f64]], pa.int8()), pa.array([0], pa.int32()),
+                                      children, names, codes).view(union)
+    tensor = pa.StructArray.from_arrays(
+        [pa.array([[len(v)]], type=struct.field("shape").type), pa.nulls(1, type=struct.field("names").type),
+         buffer], fields=list(struct))
+    r, g, b = color
+    rgba = pa.array([(r << 24) | (g << 16) | (b << 8) | 255], type=pa.uint32())
+    return [rr.DescribedComponentBatch(_Batch(tensor), desc), rr.DescribedComponentBatch(_Batch(rgba), color_desc)]
 
 
 def log_geometry(rec: rr.RecordingStream, result: object) -> None:
@@ -57,6 +119,50 @@ def log_geometry(rec: rr.RecordingStream, result: object) -> None:
             [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
 
 
+class ColumnBuffer:
+    """Per-frame scalars and log lines held for a few frames and sent as columns
+    (``send_columns``): one call per entity instead of one per value, the same data."""
+
+    def __init__(self, rec: rr.RecordingStream, frames: int = 64) -> None:
+        self.rec, self.frames = rec, frames
+        self._scalars: dict[str, tuple[list[int], list[float], list[float]]] = {}
+        self._texts: dict[str, tuple[list[int], list[float], list[str], list[str]]] = {}
+        self._pending = 0
+
+    def scalar(self, path: str, frame: int, time: float, value: float) -> None:
+        f, t, v = self._scalars.setdefault(path, ([], [], []))
+        f.append(frame)
+        t.append(time)
+        v.append(value)
+
+    def text(self, path: str, frame: int, time: float, text: str, level: str) -> None:
+        f, t, x, lv = self._texts.setdefault(path, ([], [], [], []))
+        f.append(frame)
+        t.append(time)
+        x.append(text)
+        lv.append(level)
+
+    def end_frame(self) -> None:
+        """Count a frame; send everything held every ``frames`` frames."""
+        self._pending += 1
+        if self._pending >= self.frames:
+            self.flush()
+
+    def flush(self) -> None:
+        """Send everything held."""
+        for path, (f, t, v) in self._scalars.items():
+            self.rec.send_columns(path, indexes=_times(f, t), columns=rr.Scalars.columns(scalars=v))
+        for path, (f, t, x, lv) in self._texts.items():
+            self.rec.send_columns(path, indexes=_times(f, t), columns=rr.TextLog.columns(text=x, level=lv))
+        self._scalars.clear()
+        self._texts.clear()
+        self._pending = 0
+
+
+def _times(frames: list[int], times: list[float]) -> list[rr.TimeColumn]:
+    return [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
+
+
 class Recorder:
     """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
 
@@ -65,15 +171,19 @@ class Recorder:
     """
 
     def __init__(self, path: Path, *, source: str, tracker: str, config_text: str,
-                 image_every: int = 1, trail_length: int = 60) -> None:
+                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None) -> None:
         self.rec = rr.RecordingStream(APPLICATION_ID)
         self.rec.save(path, default_blueprint=self.blueprint())
         self.image_every = image_every
+        self.jpeg_quality = jpeg_quality
+        self._jpeg_noted = False
         self._trails: dict[int, deque] = {}
         self._trail_length = trail_length
         self._labelled: set[int] = set()
         self.confirmed_ids: set[int] = set()
         self.frames_logged = 0
+        self.columns = ColumnBuffer(self.rec)
+        self._now = (0, 0.0)  # (frame, time) being logged
         self.rec.log("config", rr.TextDocument(
             f"# wfviz {tracker}\n\nSource: `{source}`\n\n```toml\n{config_text}\n```",
             media_type=rr.MediaType.MARKDOWN), static=True)
@@ -133,12 +243,39 @@ class Recorder:
         rec = self.rec
         rec.set_time("frame", sequence=frame.index)
         rec.set_time("time", duration=frame.time)
+        self._now = (frame.index, frame.time)
         images = self.image_every > 0 and self.frames_logged % self.image_every == 0
         if images:
-            rec.log("camera/image", rr.Image(frame.image))
+            self.image("camera/image", frame.image)
         self._log_common(result)
         self.log_stages(result, images)
         self.frames_logged += 1
+        self.columns.end_frame()
+
+    def image(self, path: str, image: np.ndarray) -> None:
+        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set and it is 8-bit."""
+        if self.jpeg_quality is None:
+            self.rec.log(path, rr.Image(image))
+            return
+        if image.dtype != np.uint8:
+            if not self._jpeg_noted:
+                self._jpeg_noted = True
+                warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
+                              "stay lossless", ClipNote, stacklevel=2)
+            self.rec.log(path, rr.Image(image))
+            return
+        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+        if not ok:
+            raise ValueError(f"{path}: JPEG encoding failed")
+        self.rec.log(path, rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg"))
+
+    def scalar(self, path: str, value: float) -> None:
+        """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`)."""
+        self.columns.scalar(path, *self._now, float(value))
+
+    def text(self, message: str, level: str = "INFO", path: str = "log") -> None:
+        """A ``TextLog`` line at the current frame (sent in columns)."""
+        self.columns.text(path, *self._now, message, level)
 
     def log_stages(self, result: FrameResult, images: bool) -> None:
         """Tracker-specific stages; overridden by each tracker's adapter."""
@@ -152,33 +289,33 @@ class Recorder:
                 area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64)))
         else:
             rec.log("camera/detections", points)
-        rec.log("detection/count", rr.Scalars(float(len(d))))
-        rec.log("detection/threshold", rr.Scalars(float(d.threshold) if np.isfinite(d.threshold) else np.nan))
+        self.scalar("detection/count", len(d))
+        self.scalar("detection/threshold", d.threshold if np.isfinite(d.threshold) else np.nan)
         self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])
         self.confirmed_ids.update(t.track_id for t in result.tracks if t.confirmed)
         preds = result.predictions
         ids = [p.track_id for p in preds]
-        colors = [track_color(p.track_id) if p.confirmed else TENTATIVE_COLOR for p in preds]
+        conf = np.array([p.confirmed for p in preds], dtype=bool)
+        colors = track_colors(ids, conf.tolist())
         labels = [(f"{p.track_id}" + (" meet" if p.meeting else "")) if p.confirmed else ""
                   for p in preds]
+        geo = np.array([(p.x, p.y, p.half_w, p.half_h) for p in preds], dtype=np.float32).reshape(-1, 4)
+        cids = class_ids(ids)
         rec.log("camera/predictions", rr.Points2D(
-            [[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)), class_ids=ids,
-            colors=colors, labels=labels, radii=[1.5 if p.confirmed else 0.7 for p in preds],
-            show_labels=True))
+            geo[:, :2], class_ids=cids, colors=colors, labels=labels,
+            radii=np.where(conf, 1.5, 0.7).astype(np.float32), show_labels=True))
         rec.log("camera/gates", rr.Boxes2D(
-            centers=[[p.x, p.y] for p in preds] if preds else np.zeros((0, 2)),
-            half_sizes=[[p.half_w, p.half_h] for p in preds] if preds else np.zeros((0, 2)),
-            class_ids=ids, colors=colors, radii=[0.5 if p.confirmed else 0.2 for p in preds],
-            show_labels=False))
+            centers=geo[:, :2], half_sizes=geo[:, 2:], class_ids=cids, colors=colors,
+            radii=np.where(conf, 0.5, 0.2).astype(np.float32), show_labels=False))
         self._log_trails(result)
         for stage, ms in result.timings.items():
-            rec.log(f"timing/{stage}", rr.Scalars(ms))
+            self.scalar(f"timing/{stage}", ms)
         confirmed = {t.track_id for t in result.tracks if t.confirmed} | self._labelled
         for e in result.events:
             level = EVENT_LEVELS.get(e.kind, "INFO")
             if e.kind == "deleted" and e.track_id not in confirmed:
                 level = "DEBUG"
-            rec.log("log", rr.TextLog(e.message, level=level))
+            self.text(e.message, level)
 
     def _log_trails(self, result: FrameResult) -> None:
         live = set()
@@ -189,11 +326,11 @@ class Recorder:
         for tid in list(self._trails):
             if tid not in live:
                 del self._trails[tid]
-        conf = [t for t in result.tracks if t.confirmed]
-        strips = [np.array(self._trails[t.track_id], dtype=np.float32) for t in conf]
+        conf = [t.track_id for t in result.tracks if t.confirmed]
+        strips = [np.array(self._trails[i], dtype=np.float32) for i in conf]
         self.rec.log("camera/tracks", rr.LineStrips2D(
-            strips, class_ids=[t.track_id for t in conf], labels=[str(t.track_id) for t in conf],
-            colors=[track_color(t.track_id) for t in conf], radii=0.6, show_labels=False))
+            strips, class_ids=class_ids(conf), labels=[str(i) for i in conf],
+            colors=track_colors(conf), radii=0.6, show_labels=False))
 
     def _ensure_labels(self, confirmed_ids: list[int]) -> None:
         """Static annotation context: a stable colour and label per confirmed track id."""
@@ -201,9 +338,10 @@ class Recorder:
         if not new:
             return
         self._labelled |= new
+        latest = dict(zip(class_ids(sorted(self._labelled)).tolist(), sorted(self._labelled)))
         self.rec.log("/", rr.AnnotationContext([
-            rr.ClassDescription(info=rr.AnnotationInfo(id=i, label=f"track {i}", color=track_color(i)))
-            for i in sorted(self._labelled)]), static=True)
+            rr.ClassDescription(info=rr.AnnotationInfo(id=c, label=f"track {i}", color=track_color(i)))
+            for c, i in sorted(latest.items())]), static=True)
 
     def log_truth(self, shown: list[tuple[int, float, float]], hidden: list[tuple[int, float, float]],
                   errors: FrameErrors) -> None:
@@ -215,8 +353,8 @@ class Recorder:
             colors=[TRUTH_COLOR] * len(shown) + [TRUTH_HIDDEN_COLOR] * len(hidden),
             radii=3.0, show_labels=False))
         self.rec.log("eval/cle", rr.Scalars(errors.cle_mean))
-        self.rec.log("eval/missed", rr.Scalars(float(errors.missed)))
-        self.rec.log("eval/false_alarms", rr.Scalars(float(errors.false_alarms)))
+        self.scalar("eval/missed", errors.missed)
+        self.scalar("eval/false_alarms", errors.false_alarms)
 
     def log_scores(self, table: str) -> None:
         """Final scores against truth as static text."""
@@ -225,10 +363,11 @@ class Recorder:
 
     def log_message(self, text: str, level: str = "INFO") -> None:
         """A free text line in ``log`` at the current time."""
-        self.rec.log("log", rr.TextLog(text, level=level))
+        self.text(text, level)
 
     def close(self) -> None:
         """Send the final default blueprint (per-track views), flush and close the file."""
+        self.columns.flush()
         ids = sorted(self.confirmed_ids)
         if ids:
             self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)

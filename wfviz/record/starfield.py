@@ -7,7 +7,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from wfviz.evaluate import FrameErrors
-from wfviz.record.recorder import Recorder, track_color
+from wfviz.record.recorder import Recorder, class_ids, track_colors
 from wfviz.starfield.metrics import paper_scores
 from wfviz.trackers.starfield import CANDIDATE_STATUS, StarfieldResult
 
@@ -85,18 +85,18 @@ class StarfieldRecorder(Recorder):
             labels=[f"{r.chain_id} {'found' if r.found.uv is not None else 'predicted'} "
                     f"(thr {r.found.threshold:.1f})" for r in wins], radii=0.3, show_labels=False))
         if reg.ok:
-            rec.log("registration/dx", rr.Scalars(reg.dx))
-            rec.log("registration/dy", rr.Scalars(reg.dy))
-            rec.log("registration/rotation", rr.Scalars(reg.rotation))
-            rec.log("registration/rms", rr.Scalars(reg.rms))
-        rec.log("registration/pairs", rr.Scalars(float(len(reg.pairs))))
+            self.scalar("registration/dx", reg.dx)
+            self.scalar("registration/dy", reg.dy)
+            self.scalar("registration/rotation", reg.rotation)
+            self.scalar("registration/rms", reg.rms)
+        self.scalar("registration/pairs", float(len(reg.pairs)))
         if reg.note and reg.note != "first frame":
             level = "WARN" if reg.method == "none" else "INFO"
             what = "no registration" if reg.method == "none" else "consensus fallback"
-            rec.log("log", rr.TextLog(f"registration: {what} ({reg.note})", level=level))
+            self.text(f"registration: {what} ({reg.note})", level=level)
         for p in result.predictions:
             if p.confirmed:
-                rec.log(f"kalman/{p.track_id}/cov_trace", rr.Scalars(p.cov_trace))
+                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
         self._chain_points.extend(result.chain_points)
 
     def _log_chains(self, result: StarfieldResult) -> None:
@@ -105,18 +105,18 @@ class StarfieldRecorder(Recorder):
         for c in result.chains:
             by[c.status].append(c)
         for name in by:
-            rec.log(f"chains/{name}", rr.Scalars(float(len(by[name]))))
+            self.scalar(f"chains/{name}", float(len(by[name])))
         rec.log("camera/chains/new", rr.LineStrips2D(
             [c.xy for c in by["new"]], colors=NEW_COLOR, radii=0.3,
             labels=[f"New {c.chain_id}" for c in by["new"]], show_labels=False))
         run = by["run"]
         rec.log("camera/chains/run", rr.LineStrips2D(
-            [c.xy for c in run], class_ids=[c.chain_id for c in run],
-            colors=[track_color(c.chain_id) for c in run], radii=0.5,
+            [c.xy for c in run], class_ids=class_ids([c.chain_id for c in run]),
+            colors=track_colors([c.chain_id for c in run]), radii=0.5,
             labels=[f"Run {c.chain_id}" for c in run], show_labels=False))
         pts = [(c.chain_id, xy) for c in run for xy, k in zip(c.xy, c.kinds) if k == "predicted"]
         rec.log("camera/chains/predicted", rr.Points2D(
-            [xy for _, xy in pts] if pts else np.zeros((0, 2)), class_ids=[i for i, _ in pts],
+            [xy for _, xy in pts] if pts else np.zeros((0, 2)), class_ids=class_ids([i for i, _ in pts]),
             colors=(255, 255, 255, 120), radii=0.8))
         rec.log("camera/chains/out", rr.LineStrips2D(
             [c.xy for c in by["out"]], colors=OUT_COLOR, radii=0.4,

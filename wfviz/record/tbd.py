@@ -60,10 +60,10 @@ class TBDRecorder(Recorder):
         p = result.p_count
         n_log = max(len(p), self._counts_logged)
         for n in range(n_log):
-            rec.log(f"tbd/p_count/{n}", rr.Scalars(float(p[n]) if n < len(p) else 0.0))
+            self.scalar(f"tbd/p_count/{n}", float(p[n]) if n < len(p) else 0.0)
         self._counts_logged = n_log
-        rec.log("tbd/count", rr.Scalars(float(result.count)))
-        rec.log("tbd/noise_sigma", rr.Scalars(float(result.noise_sigma)))
+        self.scalar("tbd/count", float(result.count))
+        self.scalar("tbd/noise_sigma", float(result.noise_sigma))
         regions = [r for r in result.regions if r.kind != "full"]
         if regions or self._regions_logged:
             rec.log("camera/regions", rr.Boxes2D(
@@ -75,5 +75,5 @@ class TBDRecorder(Recorder):
         confirmed = {t.track_id for t in result.tracks if t.confirmed}
         for tid, amp in result.amplitudes.items():
             if tid in confirmed:
-                rec.log(f"tbd/{tid}/amplitude", rr.Scalars(float(amp)))
-                rec.log(f"tbd/{tid}/position_std", rr.Scalars(float(result.position_std[tid])))
+                self.scalar(f"tbd/{tid}/amplitude", float(amp))
+                self.scalar(f"tbd/{tid}/position_std", float(result.position_std[tid]))

@@ -554,7 +554,7 @@ class FusionTracker:
             claimed = self.manager.claimed(preds, feats.centre)
             born_idx = np.nonzero(~used & ~claimed)[0]
             births = feats.centre[born_idx]
-        velocities = {i: self.manager.tracks[i].x[2:].copy() for i in recovered}
+        velocities = {i: self.manager.velocity(i) for i in recovered}
         events = events_pre + self.manager.update(meas, births)
         self._restart(preds, recovered, velocities, feats)
         events += [TrackEvent(frame.index, "recovered", preds[i].track_id,
@@ -669,13 +669,9 @@ class FusionTracker:
         the old state would pull its next window back towards where the target was lost."""
         if not recovered:
             return
-        by_id = {t.track_id: t for t in self.manager.tracks}
         for i, j in recovered.items():
-            t = by_id.get(preds[i].track_id)
-            if t is None:
-                continue
-            t.x = np.array([feats.centre[j, 0], feats.centre[j, 1], *velocities[i]], dtype=np.float64)
-            t.P = self.manager.P0.copy()
+            self.manager.restart(preds[i].track_id, np.array(
+                [feats.centre[j, 0], feats.centre[j, 1], *velocities[i]], dtype=np.float64))
 
     def _update_refs(self, events: list[TrackEvent], born_idx: np.ndarray, feats: Features,
                      matches: list[Match]) -> None:
@@ -694,7 +690,7 @@ class FusionTracker:
         for tid, j in zip(born, born_idx):
             a, g = float(feats.area[j]), float(feats.grey[j])
             self._refs[tid] = _Ref(a, g, a, g)
-        live = {t.track_id for t in self.manager.tracks}
+        live = set(self.manager.track_ids)
         for tid in list(self._refs):
             if tid not in live:
                 del self._refs[tid]

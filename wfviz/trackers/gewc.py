@@ -7,7 +7,7 @@ from dataclasses import dataclass, replace
 import numpy as np
 
 from wfviz.background import suppress_background
-from wfviz.centroid import CentroidResult, measure
+from wfviz.centroid import measure_many
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect, signal_to_clutter
@@ -136,15 +136,14 @@ class GEWCTracker:
                  suppressed: np.ndarray) -> dict[int, Measurement]:
         """GEWC centroid of each assigned detection inside its track's window."""
         cc = self.config.centroid
-        out: dict[int, Measurement] = {}
-        for ti, di in pairs.items():
-            bw, bh = dets.bbox[di, 2], dets.bbox[di, 3]
-            size = int(max(cc.window, max(bw, bh) + 4))
-            r: CentroidResult | None = measure(
-                suppressed, dets.labels, int(dets.component[di]), tuple(dets.xy[di]), size,
-                dets.threshold if dets.threshold_map is None else dets.threshold_map,
-                cc.method, cc.gradient_bins, cc.iterations)
-            if r is None:
-                continue
-            out[ti] = Measurement(preds[ti].track_id, r.x, r.y, r.weights, di)
-        return out
+        if not pairs:
+            return {}
+        tracks = list(pairs)
+        di = np.array([pairs[t] for t in tracks], dtype=np.int64)
+        sizes = np.maximum(cc.window, dets.bbox[di, 2:4].max(axis=1) + 4)
+        results = measure_many(
+            suppressed, dets.labels, dets.component[di], dets.xy[di], sizes,
+            dets.threshold if dets.threshold_map is None else dets.threshold_map,
+            cc.method, cc.gradient_bins, cc.iterations)
+        return {ti: Measurement(preds[ti].track_id, r.x, r.y, r.weights, int(d))
+                for ti, d, r in zip(tracks, di, results) if r is not None}

@@ -1,0 +1,335 @@
+"""Speed on one core: every tracker per stage, `track` against `record`, decoding, and peers.
+
+    python benchmarks/performance.py                   # everything (~5 min), prints the tables
+    python benchmarks/performance.py --write-doc       # also updates docs/performance.md
+    python benchmarks/performance.py --only trackers record --runs 3
+
+One core means: the process is pinned to one CPU (``sched_setaffinity``; Rerun's writer
+threads share it), ``OMP_NUM_THREADS=1`` and ``cv2.setNumThreads(1)``. Frames are rendered
+into memory first, so decoding is not in the tracker times; decoding is timed on its own from
+the same frames written as files. Each tracker runs ``--runs`` times over the clip (a fresh
+tracker each time); per frame and stage the median over the runs is kept, then the table
+gives the median, mean and 95th percentile over the frames.
+
+``record`` and ``track`` are timed through :func:`wfviz.run.run` (what the CLI calls) on the
+in-memory frames: ``track`` writes the tracks CSV, ``record`` also the recording with every
+stage and (by default) every frame's raw and residual image. Their cost is the wall time of
+the whole run (writer threads and the final flush included) divided by the frames.
+
+Peers (``--only peers``, needs ``pip install -e ".[bench]"``): trackpy ``locate`` + ``link``
+and photutils ``DAOStarFinder`` on a ``Background2D``-subtracted frame, on the same 640x512
+frames as the GEWC tracker.
+"""
+
+from __future__ import annotations
+
+import os
+
+os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV start their pools
+os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
+os.environ.setdefault("MKL_NUM_THREADS", "1")
+
+import argparse  # noqa: E402
+import importlib.metadata as md  # noqa: E402
+import platform  # noqa: E402
+import sys  # noqa: E402
+import tempfile  # noqa: E402
+import time  # noqa: E402
+import warnings  # noqa: E402
+from collections.abc import Iterator  # noqa: E402
+from pathlib import Path  # noqa: E402
+
+import cv2  # noqa: E402
+import numpy as np  # noqa: E402
+
+from wfviz.clip import open_clip  # noqa: E402
+from wfviz.config import config_to_toml  # noqa: E402
+from wfviz.frames import Frame  # noqa: E402
+from wfviz.run import run  # noqa: E402
+from wfviz.synth.demo import demo_clip  # noqa: E402
+from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.trackers import make_tracker  # noqa: E402
+
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_blocks import write_block  # noqa: E402
+
+DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
+SECTIONS = ("trackers", "record", "decode", "peers")
+# tracker -> (clip, budget ms per frame from the performance issue)
+TRACKER_CASES = {
+    "gewc": ("demo (640x512, 180°, 4 targets)", 2.0),
+    "fusion": ("uniform-50hz (480x320)", 2.0),
+    "starfield": ("starfield (1024x1024)", 50.0),
+    "tbd": ("lowsnr-tbd (64x64)", 20.0),
+}
+
+
+class MemoryClip:
+    """Frames held in memory (benchmark only): a ``Clip`` without decoding."""
+
+    def __init__(self, name: str, frames: list[Frame], fps: float) -> None:
+        self.name, self._frames, self.fps = name, frames, fps
+        self.n_frames = len(frames)
+        self.shape = frames[0].image.shape
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        yield from self._frames[start:stop]
+
+
+def case_frames(tracker: str) -> MemoryClip:
+    """The clip each tracker's budget is stated on, rendered into memory."""
+    if tracker == "gewc":
+        clip = demo_clip(0)
+    else:
+        clip = make_scenario({"fusion": "uniform-50hz", "starfield": "starfield", "tbd": "lowsnr-tbd"}[tracker])
+    return MemoryClip(clip.name, list(clip.frames()), clip.fps)
+
+
+def one_core() -> str:
+    """Pin this process to one CPU and OpenCV to one thread; describe the CPU."""
+    cpu = sorted(os.sched_getaffinity(0))[-1]
+    os.sched_setaffinity(0, {cpu})
+    cv2.setNumThreads(1)
+    return f"CPU {cpu}"
+
+
+def machine() -> str:
+    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                  if ln.startswith("model name")), platform.processor() or "unknown CPU")
+    versions = ", ".join(f"{p} {md.version(p)}" for p in ("numpy", "opencv-python-headless", "scipy", "rerun-sdk"))
+    return (f"{model}, {os.cpu_count()} cores ({platform.system()} {platform.release()}), "
+            f"Python {platform.python_version()}, {versions}")
+
+
+def stats(values: np.ndarray) -> tuple[float, float, float]:
+    return float(np.median(values)), float(np.mean(values)), float(np.percentile(values, 95))
+
+
+# -- trackers ---------------------------------------------------------------------------------
+def time_tracker(name: str, clip: MemoryClip, runs: int) -> tuple[list[str], np.ndarray, np.ndarray]:
+    """(stages, per-frame stage ms (frames, stages), per-frame step ms), medians over runs."""
+    per_run, steps = [], []
+    stages: list[str] = []
+    frames = list(clip.frames())
+    for r in range(runs + 1):  # run 0 warms up (imports, allocator, caches)
+        tracker = make_tracker(name)
+        rows, wall = [], []
+        for f in frames:
+            t0 = time.perf_counter()
+            result = tracker.step(f)
+            wall.append((time.perf_counter() - t0) * 1e3)
+            if not stages:
+                stages = [s for s in result.timings if s != "total"]
+            rows.append([result.timings.get(s, 0.0) for s in stages])
+        if r:
+            per_run.append(rows)
+            steps.append(wall)
+    return stages, np.median(np.array(per_run), axis=0), np.median(np.array(steps), axis=0)
+
+
+def trackers_section(runs: int) -> str:
+    out = ["### Trackers, per stage (ms per frame, one core, decoding excluded)", ""]
+    summary = ["| tracker | clip | frames | median | mean | p95 | frames/s (mean) | budget | met |",
+               "|---|---|---:|---:|---:|---:|---:|---:|---|"]
+    detail = []
+    for name, (desc, budget) in TRACKER_CASES.items():
+        clip = case_frames(name)
+        stages, table, step = time_tracker(name, clip, runs)
+        med, mean, p95 = stats(step)
+        summary.append(f"| {name} | {desc} | {len(step)} | **{med:.2f}** | {mean:.2f} | {p95:.2f} | "
+                       f"{1e3 / mean:,.0f} | {budget:g} | {'yes' if med <= budget else 'no'} |")
+        rows = [f"**{name}** on {desc}:", "", "| stage | median | mean | p95 |", "|---|---:|---:|---:|"]
+        for j, s in enumerate(stages):
+            rows.append("| {} | {:.3f} | {:.3f} | {:.3f} |".format(s, *stats(table[:, j])))
+        rows.append("| step (whole) | {:.3f} | {:.3f} | {:.3f} |".format(med, mean, p95))
+        detail += rows + [""]
+        print(summary[-1], flush=True)
+    return "\n".join(out + summary + [""] + detail)
+
+
+# -- track against record ---------------------------------------------------------------------
+def time_run(clip: MemoryClip, runs: int, record: dict | None, tmp: Path) -> tuple[float, float]:
+    """(median ms per frame of the whole run, .rrd MB per frame) for `track` (record None) or
+    `record` with the given recorder options."""
+    per_frame, size = [], 0.0
+    for r in range(runs + 1):
+        tracker = make_tracker("gewc")
+        csv, rrd = tmp / f"t{r}.csv", tmp / f"r{r}.rrd"
+        options = None
+        if record is not None:
+            options = dict(source=clip.name, config_text=config_to_toml(tracker.config), **record)
+        t0 = time.perf_counter()
+        run(clip, tracker, tracks_csv=csv, recording=rrd if record is not None else None,
+            recorder_options=options)
+        ms = (time.perf_counter() - t0) * 1e3 / clip.n_frames
+        if record is not None:
+            size = rrd.stat().st_size / 1e6 / clip.n_frames
+            rrd.unlink()
+        csv.unlink()
+        if r:
+            per_frame.append(ms)
+    return float(np.median(per_frame)), size
+
+
+def record_section(runs: int) -> str:
+    clip16 = case_frames("gewc")
+    lo, hi = np.percentile(clip16.frames().__next__().image, [0.1, 99.9])
+    clip8 = MemoryClip("demo-8bit", [Frame(f.index, f.time, np.clip((f.image - lo) * 255.0 / (hi - lo), 0, 255)
+                                            .astype(np.uint8)) for f in clip16.frames()], clip16.fps)
+    rows = ["### `track` against `record` (GEWC, demo clip, ms per frame, one core, decoding excluded)", "",
+            "Whole runs through `wfviz.run.run`, writer threads and the final flush included; "
+            f"median of {runs} runs.", "",
+            "| clip | command | ms per frame | over `track` | .rrd MB per frame |",
+            "|---|---|---:|---:|---:|"]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        for clip in (clip16, clip8):
+            bits = "16-bit" if clip is clip16 else "8-bit"
+            base, _ = time_run(clip, runs, None, tmp)
+            rows.append(f"| {bits} | `track` | {base:.2f} | | |")
+            cases = [("`record` (every frame's images)", dict(image_every=1)),
+                     ("`record --image-every 10`", dict(image_every=10)),
+                     ("`record --no-images`", dict(image_every=0))]
+            if clip is clip8:
+                cases.insert(1, ("`record --jpeg-quality 90`", dict(image_every=1, jpeg_quality=90)))
+            for label, opts in cases:
+                ms, mb = time_run(clip, runs, opts, tmp)
+                rows.append(f"| {bits} | {label} | {ms:.2f} | **+{ms - base:.2f}** | {mb:.3f} |")
+                print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+# -- decoding ---------------------------------------------------------------------------------
+def decode_section(runs: int) -> str:
+    clip = demo_clip(0)
+    rows = ["### Decoding (the demo clip, 160 frames of 640x512, ms per frame, one core)", "",
+            "| source | ms per frame |", "|---|---:|"]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        folder = clip.save(tmp / "png16")
+        frames8 = [cv2.normalize(f.image, None, 0, 255, cv2.NORM_MINMAX, cv2.CV_8U) for f in clip.frames()]
+        np.save(tmp / "stack.npy", np.stack([f.image for f in clip.frames()]))
+        cases = [("16-bit PNG folder", folder), (".npy stack (16-bit)", tmp / "stack.npy")]
+        for codec in ("FFV1", "MJPG"):
+            path = tmp / f"clip-{codec}.avi"
+            writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), 25.0, frames8[0].shape[::-1], isColor=False)
+            if writer.isOpened():
+                for f in frames8:
+                    writer.write(f)
+                writer.release()
+                cases.append((f"8-bit AVI ({codec})", path))
+        for label, path in cases:
+            times = []
+            for _ in range(runs):
+                with warnings.catch_warnings():
+                    warnings.simplefilter("ignore")
+                    src = open_clip(path)
+                t0 = time.perf_counter()
+                n = sum(1 for _ in src.frames())
+                times.append((time.perf_counter() - t0) * 1e3 / n)
+            rows.append(f"| {label} | {np.median(times):.2f} |")
+            print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+# -- peers ------------------------------------------------------------------------------------
+def peers_section(runs: int, n_frames: int) -> str:
+    try:
+        import pandas as pd
+        import trackpy as tp
+        from astropy.stats import SigmaClip
+        from photutils.background import Background2D, MedianBackground
+        from photutils.detection import DAOStarFinder
+    except ImportError as exc:
+        return f"### Peers\n\nskipped: {exc} (pip install -e \".[bench]\")"
+    tp.quiet()
+    clip = demo_clip(0, n_frames=n_frames)
+    frames = list(clip.frames())
+    images = [f.image.astype(np.float32) for f in frames]
+    truth = [np.array([(t.x, t.y) for t in clip.truth_at(f.index)]).reshape(-1, 2) for f in frames]
+
+    def recall(found: list[np.ndarray]) -> float:
+        """Share of the truth targets with a detection within 1.5 px."""
+        hits = [np.hypot(*(t[:, None, :] - xy[None, :, :]).transpose(2, 0, 1)).min(axis=1) <= 1.5
+                for t, xy in zip(truth, found) if len(t) and len(xy)]
+        return float(np.concatenate(hits).mean()) if hits else 0.0
+
+    def ours() -> list[np.ndarray]:
+        tracker = make_tracker("gewc")
+        return [tracker.step(f).detections.xy for f in frames]
+
+    # parameters: the loosest that still find the four targets (trackpy's minmass is 0.8x
+    # the faintest target's mass on these frames); the clutter then yields many features
+    def trackpy_run() -> list[np.ndarray]:  # locate (band-pass + refine) per frame, then link
+        feats = [tp.locate(im, diameter=5, minmass=150, separation=3).assign(frame=i)
+                 for i, im in enumerate(images)]
+        tp.link(pd.concat(feats, ignore_index=True), search_range=5, memory=3, adaptive_stop=1.0,
+                adaptive_step=0.8)  # adaptive: dense clutter makes oversize subnets
+        return [f[["x", "y"]].to_numpy() for f in feats]
+
+    def photutils_run() -> list[np.ndarray]:  # background-subtracted DAOStarFinder per frame
+        found = []
+        for im in images:
+            bkg = Background2D(im, (32, 32), filter_size=(3, 3), sigma_clip=SigmaClip(sigma=3.0),
+                               bkg_estimator=MedianBackground())
+            src = DAOStarFinder(fwhm=2.5, threshold=3.0 * float(bkg.background_rms_median))(im - bkg.background)
+            found.append(np.zeros((0, 2)) if src is None else
+                         np.column_stack([np.asarray(src["x_centroid"]), np.asarray(src["y_centroid"])]))
+        return found
+
+    results = []
+    for label, fn in (("wfviz GEWC (whole tracker: detection, centroid, Kalman, tracks)", ours),
+                      ("trackpy `locate` (diameter 5, minmass 150) + `link` (search range 5, adaptive)", trackpy_run),
+                      ("photutils `Background2D` (32 px boxes) + `DAOStarFinder` (FWHM 2.5, 3σ)", photutils_run)):
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore")
+            fn()  # warm-up (imports, caches)
+            times, found = [], []
+            for _ in range(runs):
+                t0 = time.perf_counter()
+                found = fn()
+                times.append((time.perf_counter() - t0) * 1e3 / len(frames))
+        results.append((label, float(np.median(times)), np.mean([len(x) for x in found]), recall(found)))
+        print(label, f"{results[-1][1]:.2f} ms/frame", flush=True)
+    ref = results[0][1]
+    rows = [f"### Peers on the same frames ({len(frames)} demo frames, 640x512, one core)", "",
+            "| method | ms per frame | detections per frame | targets found (≤ 1.5 px) | time / wfviz |",
+            "|---|---:|---:|---:|---:|"]
+    rows += [f"| {lab} | {ms:.2f} | {k:.0f} | {rec:.0%} | **{ms / ref:.0f}×** |" for lab, ms, k, rec in results]
+    vers = ", ".join(f"{p} {md.version(p)}" for p in ("trackpy", "photutils", "astropy") if _installed(p))
+    rows += ["", f"({vers}.)"]
+    return "\n".join(rows)
+
+
+def _installed(pkg: str) -> bool:
+    try:
+        md.version(pkg)
+        return True
+    except md.PackageNotFoundError:
+        return False
+
+
+def main() -> int:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--only", nargs="+", choices=SECTIONS, default=list(SECTIONS))
+    ap.add_argument("--runs", type=int, default=5)
+    ap.add_argument("--peer-frames", type=int, default=40, help="demo frames for the peer comparison")
+    ap.add_argument("--write-doc", action="store_true", help=f"update {DOC.name}")
+    args = ap.parse_args()
+    pinned = one_core()
+    head = (f"Measured {time.strftime('%Y-%m-%d')} on {machine()}; one core ({pinned}), "
+            f"`python benchmarks/performance.py --runs {args.runs}`.")
+    print(head, flush=True)
+    blocks = {"trackers": lambda: trackers_section(args.runs), "record": lambda: record_section(args.runs),
+              "decode": lambda: decode_section(args.runs),
+              "peers": lambda: peers_section(args.runs, args.peer_frames)}
+    for name in args.only:
+        text = blocks[name]()
+        print(text, flush=True)
+        if args.write_doc:
+            write_block(DOC, f"<!-- perf-{name}:begin -->", f"<!-- perf-{name}:end -->", head + "\n\n" + text)
+    return 0
+
+
+if __name__ == "__main__":
+    raise SystemExit(main())
