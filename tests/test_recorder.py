@@ -12,7 +12,9 @@ import rerun as rr
 from rerun.chunk import RrdReader
 
 from wfviz.clip import ClipError, open_clip
-from wfviz.record.recorder import bar_chart, class_ids, track_colors
+import pyarrow as pa
+
+from wfviz.record.recorder import bar_chart, bar_chart_arrays, class_ids, track_colors
 
 
 def test_bar_chart_batches_equal_rerun_bar_chart():
@@ -22,6 +24,17 @@ def test_bar_chart_batches_equal_rerun_bar_chart():
     assert [b.component_descriptor() for b in fast] == [b.component_descriptor() for b in ref]
     for a, b in zip(fast, ref):
         assert a.as_arrow_array().equals(b.as_arrow_array())
+
+
+def test_bar_chart_column_rows_equal_rerun_bar_charts():
+    rng = np.random.default_rng(1)
+    values = rng.random((5, 8))
+    colors = rng.integers(0, 256, (5, 3))
+    tensor, rgba = bar_chart_arrays(values, colors)
+    refs = [list(rr.BarChart(v, color=tuple(int(x) for x in c)).as_component_batches())
+            for v, c in zip(values, colors)]
+    assert tensor.equals(pa.concat_arrays([r[0].as_arrow_array() for r in refs]))
+    assert rgba.equals(pa.concat_arrays([r[1].as_arrow_array() for r in refs]))
 
 
 def test_class_ids_fit_16_bits_and_colours_are_rgba():

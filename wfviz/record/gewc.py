@@ -6,7 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import Recorder, bar_chart, class_ids, log_geometry, track_color, track_colors
+from wfviz.record.recorder import Recorder, class_ids, log_geometry, track_color, track_colors
 from wfviz.trackers.gewc import GEWCResult
 
 
@@ -41,7 +41,7 @@ class GEWCRecorder(Recorder):
         confirmed = {t.track_id for t in result.tracks if t.confirmed}
         for x in m:
             if x.track_id in confirmed:
-                rec.log(f"gewc/{x.track_id}", bar_chart(x.weights, track_color(x.track_id)))
+                self.bar(f"gewc/{x.track_id}", x.weights, track_color(x.track_id))
         for tid, nu in result.innovations.items():
             if tid in confirmed:
                 self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))

@@ -52,6 +52,11 @@ def track_colors(ids: list[int], confirmed: list[bool] | None = None) -> np.ndar
 
 
 MASK_COLOR = (255, 0, 255, 70)
+# The .rrd writer keeps a few KB per chunk in memory until the file closes, so a long clip must
+# not make many chunks: rows are batched for up to 2 s (Rerun's default: 0.2 s) and per-track
+# series go through ColumnBuffer (one chunk per entity per 1024 frames). With Rerun's defaults
+# memory grew to 1.3 GB over 20 000 frames of long-1024 (docs/performance.md).
+BATCHER = rr.ChunkBatcherConfig(flush_tick=2.0, flush_num_bytes=16 * 1024 * 1024)
 
 
 class _Batch:
@@ -76,23 +81,39 @@ def _bar_chart_template() -> tuple:
             list(union.type_codes), empty, names.index("F64"))
 
 
+def bar_chart_arrays(values: np.ndarray, colors: np.ndarray) -> tuple[pa.Array, pa.Array]:
+    """Arrow arrays of the ``BarChart`` values (one F64 tensor per row of ``values`` (N, B))
+    and colours (N, 3), exactly as Rerun's converter builds them row by row."""
+    _, _, struct, union, names, codes, empty, f64 = _bar_chart_template()
+    v = np.ascontiguousarray(values, dtype=np.float64)
+    n, b = v.shape
+    children = list(empty)
+    children[f64] = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32) * b), pa.array(v.ravel()),
+                                             type=union.field(f64).type)
+    buffer = pa.UnionArray.from_dense(pa.array(np.full(n, codes[f64], dtype=np.int8)),
+                                      pa.array(np.arange(n, dtype=np.int32)), children, names, codes).view(union)
+    shape = pa.ListArray.from_arrays(pa.array(np.arange(n + 1, dtype=np.int32)),
+                                     pa.array(np.full(n, b, dtype=np.uint64)), type=struct.field("shape").type)
+    tensor = pa.StructArray.from_arrays([shape, pa.nulls(n, type=struct.field("names").type), buffer],
+                                        fields=list(struct))
+    c = np.asarray(colors, dtype=np.uint32).reshape(-1, 3)
+    rgba = pa.array((c[:, 0] << 24) | (c[:, 1] << 16) | (c[:, 2] << 8) | 255, type=pa.uint32())
+    return tensor, rgba
+
+
 def bar_chart(values: np.ndarray, color: tuple[int, int, int]) -> list[rr.DescribedComponentBatch]:
     """The component batches of ``rr.BarChart(values, color=color)`` (1-D float64 values),
-    built straight in Arrow: the same data, about 10x faster than Rerun's tensor converter,
-    which matters with one bar chart per confirmed track per frame."""
-    desc, color_desc, struct, union, names, codes, empty, f64 = _bar_chart_template()
-    v = np.ascontiguousarray(values, dtype=np.float64).ravel()
-    children = list(empty)
-    children[f64] = pa.ListArray.from_arrays(pa.array([0, len(v)], pa.int32()), pa.array(v),
-                                             type=union.field(f64).type)
-    buffer = pa.UnionArray.from_dense(pa.array([codes[f64]], pa.int8()), pa.array([0], pa.int32()),
-                                      children, names, codes).view(union)
-    tensor = pa.StructArray.from_arrays(
-        [pa.array([[len(v)]], type=struct.field("shape").type), pa.nulls(1, type=struct.field("names").type),
-         buffer], fields=list(struct))
-    r, g, b = color
-    rgba = pa.array([(r << 24) | (g << 16) | (b << 8) | 255], type=pa.uint32())
+    built straight in Arrow: the same data, about 10x faster than Rerun's tensor converter."""
+    desc, color_desc = _bar_chart_template()[:2]
+    tensor, rgba = bar_chart_arrays(np.asarray(values, dtype=np.float64).reshape(1, -1), np.array([color]))
     return [rr.DescribedComponentBatch(_Batch(tensor), desc), rr.DescribedComponentBatch(_Batch(rgba), color_desc)]
+
+
+def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.ComponentColumn]:
+    """``BarChart`` columns for ``send_columns``: one bar chart per row of ``values``."""
+    desc, color_desc = _bar_chart_template()[:2]
+    tensor, rgba = bar_chart_arrays(values, colors)
+    return [rr.ComponentColumn(desc, _Batch(tensor)), rr.ComponentColumn(color_desc, _Batch(rgba))]
 
 
 def log_geometry(rec: rr.RecordingStream, result: object) -> None:
@@ -120,13 +141,15 @@ def log_geometry(rec: rr.RecordingStream, result: object) -> None:
 
 
 class ColumnBuffer:
-    """Per-frame scalars and log lines held for a few frames and sent as columns
-    (``send_columns``): one call per entity instead of one per value, the same data."""
+    """Per-frame scalars and log lines held for ``frames`` frames and sent as columns
+    (``send_columns``): one call and one chunk per entity instead of one per value, the same
+    data (every chunk costs the .rrd writer memory until the file closes)."""
 
-    def __init__(self, rec: rr.RecordingStream, frames: int = 64) -> None:
+    def __init__(self, rec: rr.RecordingStream, frames: int = 1024) -> None:
         self.rec, self.frames = rec, frames
         self._scalars: dict[str, tuple[list[int], list[float], list[float]]] = {}
         self._texts: dict[str, tuple[list[int], list[float], list[str], list[str]]] = {}
+        self._bars: dict[str, tuple[list[int], list[float], list[np.ndarray], list[tuple]]] = {}
         self._pending = 0
 
     def scalar(self, path: str, frame: int, time: float, value: float) -> None:
@@ -142,6 +165,14 @@ class ColumnBuffer:
         x.append(text)
         lv.append(level)
 
+    def bar_chart(self, path: str, frame: int, time: float, values: np.ndarray,
+                  color: tuple[int, int, int]) -> None:
+        f, t, v, c = self._bars.setdefault(path, ([], [], [], []))
+        f.append(frame)
+        t.append(time)
+        v.append(np.asarray(values, dtype=np.float64))
+        c.append(color)
+
     def end_frame(self) -> None:
         """Count a frame; send everything held every ``frames`` frames."""
         self._pending += 1
@@ -154,8 +185,11 @@ class ColumnBuffer:
             self.rec.send_columns(path, indexes=_times(f, t), columns=rr.Scalars.columns(scalars=v))
         for path, (f, t, x, lv) in self._texts.items():
             self.rec.send_columns(path, indexes=_times(f, t), columns=rr.TextLog.columns(text=x, level=lv))
+        for path, (f, t, v, c) in self._bars.items():
+            self.rec.send_columns(path, indexes=_times(f, t), columns=bar_chart_columns(np.stack(v), np.array(c)))
         self._scalars.clear()
         self._texts.clear()
+        self._bars.clear()
         self._pending = 0
 
 
@@ -172,7 +206,7 @@ class Recorder:
 
     def __init__(self, path: Path, *, source: str, tracker: str, config_text: str,
                  image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None) -> None:
-        self.rec = rr.RecordingStream(APPLICATION_ID)
+        self.rec = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
         self.rec.save(path, default_blueprint=self.blueprint())
         self.image_every = image_every
         self.jpeg_quality = jpeg_quality
@@ -253,25 +287,31 @@ class Recorder:
         self.columns.end_frame()
 
     def image(self, path: str, image: np.ndarray) -> None:
-        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set and it is 8-bit."""
-        if self.jpeg_quality is None:
-            self.rec.log(path, rr.Image(image))
-            return
-        if image.dtype != np.uint8:
-            if not self._jpeg_noted:
-                self._jpeg_noted = True
-                warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
-                              "stay lossless", ClipNote, stacklevel=2)
-            self.rec.log(path, rr.Image(image))
-            return
-        ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-        if not ok:
-            raise ValueError(f"{path}: JPEG encoding failed")
-        self.rec.log(path, rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg"))
+        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set and it is 8-bit.
+
+        Sent as its own chunk right away, past the batcher: megabytes of pixels would otherwise
+        fill the batch and flush every overlay entity with it, making many small chunks."""
+        if self.jpeg_quality is not None and image.dtype != np.uint8 and not self._jpeg_noted:
+            self._jpeg_noted = True
+            warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
+                          "stay lossless", ClipNote, stacklevel=2)
+        if self.jpeg_quality is None or image.dtype != np.uint8:
+            archetype: rr.AsComponents = rr.Image(image)
+        else:
+            ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
+            if not ok:
+                raise ValueError(f"{path}: JPEG encoding failed")
+            archetype = rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
+        self.rec.send_columns(path, indexes=_times([self._now[0]], [self._now[1]]), columns=[
+            rr.ComponentColumn(b.component_descriptor(), b) for b in archetype.as_component_batches()])
 
     def scalar(self, path: str, value: float) -> None:
         """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`)."""
         self.columns.scalar(path, *self._now, float(value))
+
+    def bar(self, path: str, values: np.ndarray, color: tuple[int, int, int]) -> None:
+        """A ``BarChart`` at the current frame (sent in columns)."""
+        self.columns.bar_chart(path, *self._now, values, color)
 
     def text(self, message: str, level: str = "INFO", path: str = "log") -> None:
         """A ``TextLog`` line at the current frame (sent in columns)."""
