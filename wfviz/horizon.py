@@ -146,6 +146,23 @@ def search_region(valid: np.ndarray, horizon: Horizon | None, margin: float) -> 
     return valid & (yy < (rows - margin)[None, :])
 
 
+def search_zones(valid: np.ndarray, horizon: Horizon | None, margin: float, exclude_ground: str,
+                 fisheye: bool) -> tuple[np.ndarray, list[np.ndarray] | None]:
+    """Where to detect, and the zones that get their own threshold (None: one threshold).
+
+    ``exclude_ground``: "always" searches only the deep sky above the horizon (the paper);
+    "never" also the ground; "auto" excludes the ground only in a fisheye sky view
+    (``fisheye``: an imaging circle was found), since a narrow view may show targets over the
+    ground. When the ground is searched it is its own zone, so its clutter does not raise the
+    sky's threshold.
+    """
+    sky = search_region(valid, horizon, margin)
+    exclude = exclude_ground == "always" or (exclude_ground == "auto" and fisheye)
+    if exclude or horizon is None:
+        return sky, None
+    return valid, [sky, valid & ~sky]
+
+
 class HorizonTracker:
     """Re-estimates the horizon every ``cfg.every`` frames and smooths it over time.
 

@@ -46,7 +46,7 @@ from wfviz.config import FusionConfig
 from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect
 from wfviz.frames import Frame
-from wfviz.horizon import Horizon, HorizonTracker, search_region
+from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackEvent, TrackManager
@@ -298,6 +298,7 @@ class FusionTracker:
         self.imaging = ImagingMask(c.circle)
         self.horizon_line: Horizon | None = None
         self._region: np.ndarray | None = None
+        self._zones: list[np.ndarray] | None = None  # sky and ground, each its own threshold
         self._threshold = float("inf")
         self._refs: dict[int, _Ref] = {}
         self._steps = 0
@@ -447,14 +448,15 @@ class FusionTracker:
         t0 = time.perf_counter()
         horizon, updated = self.horizon.update(img, valid)
         if updated or mask_changed or self._region is None:
-            self._region = search_region(valid, horizon, c.horizon.margin)
+            self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
+                                                     c.horizon.exclude_ground, self.circle is not None)
         self.horizon_line = horizon
         t1 = time.perf_counter()
         times["horizon"] = (t1 - t0) * 1e3
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         t2 = time.perf_counter()
         times["suppress"] = (t2 - t1) * 1e3
-        dets = detect(suppressed, self._region, c.detection)
+        dets = detect(suppressed, self._region, c.detection, self._zones)
         if np.isfinite(dets.threshold):
             self._threshold = dets.threshold
         if not len(dets):

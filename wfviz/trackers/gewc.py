@@ -12,7 +12,7 @@ from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect, signal_to_clutter
 from wfviz.frames import Frame
-from wfviz.horizon import Horizon, HorizonTracker, search_region
+from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.registration import MotionEstimator
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
@@ -69,12 +69,6 @@ class GEWCTracker:
         """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
         return self.imaging.circle
 
-    def _exclude_ground(self) -> bool:
-        """Search only above the horizon: always, never, or (auto) in a fisheye sky view, i.e.
-        when an imaging circle was found; a narrow view may show targets over the ground."""
-        mode = self.config.horizon.exclude_ground
-        return mode == "always" or (mode == "auto" and self.circle is not None)
-
     def step(self, frame: Frame) -> GEWCResult:
         """Run every stage on one frame."""
         c = self.config
@@ -88,11 +82,8 @@ class GEWCTracker:
         lap("mask")
         horizon, horizon_updated = self.horizon.update(img, valid)
         if horizon_updated or mask_changed or self._region is None:
-            sky = search_region(valid, horizon, c.horizon.margin)
-            if self._exclude_ground() or horizon is None:
-                self._region, self._zones = sky, None
-            else:  # search the ground too, with its own threshold
-                self._region, self._zones = valid, [sky, valid & ~sky]
+            self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
+                                                     c.horizon.exclude_ground, self.circle is not None)
         lap("horizon")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
