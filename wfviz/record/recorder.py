@@ -53,10 +53,10 @@ def track_colors(ids: list[int], confirmed: list[bool] | None = None) -> np.ndar
 
 MASK_COLOR = (255, 0, 255, 70)
 # The .rrd writer keeps a few KB per chunk in memory until the file closes, so a long clip must
-# not make many chunks: rows are batched for up to 2 s (Rerun's default: 0.2 s) and per-track
-# series go through ColumnBuffer (one chunk per entity per 1024 frames). With Rerun's defaults
-# memory grew to 1.3 GB over 20 000 frames of long-1024 (docs/performance.md).
-BATCHER = rr.ChunkBatcherConfig(flush_tick=2.0, flush_num_bytes=16 * 1024 * 1024)
+# not make many chunks: rows are batched for up to 10 s or 16 MiB (Rerun's default: 0.2 s,
+# 2 MiB) and per-track series go through ColumnBuffer. With Rerun's defaults memory grew to
+# 1.3 GB over 20 000 frames of long-1024 (docs/performance.md).
+BATCHER = rr.ChunkBatcherConfig(flush_tick=10.0, flush_num_bytes=16 * 1024 * 1024)
 
 
 class _Batch:
@@ -141,16 +141,18 @@ def log_geometry(rec: rr.RecordingStream, result: object) -> None:
 
 
 class ColumnBuffer:
-    """Per-frame scalars and log lines held for ``frames`` frames and sent as columns
+    """Per-frame scalars, log lines and bar charts held for a while and sent as columns
     (``send_columns``): one call and one chunk per entity instead of one per value, the same
-    data (every chunk costs the .rrd writer memory until the file closes)."""
+    data. Every chunk costs the .rrd writer memory until the file closes (about 2 KB for
+    scalars, 34 KB for a bar chart), so scalars and lines go every ``frames`` frames and the
+    bar charts, held compactly as arrays, every ``bar_frames``."""
 
-    def __init__(self, rec: rr.RecordingStream, frames: int = 1024) -> None:
-        self.rec, self.frames = rec, frames
+    def __init__(self, rec: rr.RecordingStream, frames: int = 1024, bar_frames: int = 4096) -> None:
+        self.rec, self.frames, self.bar_frames = rec, frames, bar_frames
         self._scalars: dict[str, tuple[list[int], list[float], list[float]]] = {}
         self._texts: dict[str, tuple[list[int], list[float], list[str], list[str]]] = {}
-        self._bars: dict[str, tuple[list[int], list[float], list[np.ndarray], list[tuple]]] = {}
-        self._pending = 0
+        self._bars: dict[str, _BarRows] = {}
+        self._pending = self._bar_pending = 0
 
     def scalar(self, path: str, frame: int, time: float, value: float) -> None:
         f, t, v = self._scalars.setdefault(path, ([], [], []))
@@ -167,30 +169,54 @@ class ColumnBuffer:
 
     def bar_chart(self, path: str, frame: int, time: float, values: np.ndarray,
                   color: tuple[int, int, int]) -> None:
-        f, t, v, c = self._bars.setdefault(path, ([], [], [], []))
-        f.append(frame)
-        t.append(time)
-        v.append(np.asarray(values, dtype=np.float64))
-        c.append(color)
+        rows = self._bars.get(path)
+        if rows is None:
+            rows = self._bars[path] = _BarRows(len(values), color)
+        rows.add(frame, time, values)
 
     def end_frame(self) -> None:
-        """Count a frame; send everything held every ``frames`` frames."""
+        """Count a frame; send what is due."""
         self._pending += 1
+        self._bar_pending += 1
         if self._pending >= self.frames:
-            self.flush()
+            self.flush(bars=self._bar_pending >= self.bar_frames)
 
-    def flush(self) -> None:
-        """Send everything held."""
+    def flush(self, bars: bool = True) -> None:
+        """Send the scalars and lines held (and the bar charts, with ``bars``)."""
         for path, (f, t, v) in self._scalars.items():
             self.rec.send_columns(path, indexes=_times(f, t), columns=rr.Scalars.columns(scalars=v))
         for path, (f, t, x, lv) in self._texts.items():
             self.rec.send_columns(path, indexes=_times(f, t), columns=rr.TextLog.columns(text=x, level=lv))
-        for path, (f, t, v, c) in self._bars.items():
-            self.rec.send_columns(path, indexes=_times(f, t), columns=bar_chart_columns(np.stack(v), np.array(c)))
         self._scalars.clear()
         self._texts.clear()
-        self._bars.clear()
         self._pending = 0
+        if bars:
+            for path, rows in self._bars.items():
+                n = rows.n
+                self.rec.send_columns(path, indexes=_times(rows.frames[:n], rows.times[:n]),
+                                      columns=bar_chart_columns(rows.values[:n], np.tile(rows.color, (n, 1))))
+            self._bars.clear()
+            self._bar_pending = 0
+
+
+class _BarRows:
+    """One entity's pending bar charts: (frame, time, values) rows in growing arrays."""
+
+    def __init__(self, bins: int, color: tuple[int, int, int]) -> None:
+        self.color = np.array(color)
+        self.n = 0
+        self.frames = np.zeros(64, dtype=np.int64)
+        self.times = np.zeros(64)
+        self.values = np.zeros((64, bins))
+
+    def add(self, frame: int, time: float, values: np.ndarray) -> None:
+        if self.n == len(self.frames):
+            grow = len(self.frames)
+            self.frames = np.concatenate([self.frames, np.zeros(grow, dtype=np.int64)])
+            self.times = np.concatenate([self.times, np.zeros(grow)])
+            self.values = np.concatenate([self.values, np.zeros((grow, self.values.shape[1]))])
+        self.frames[self.n], self.times[self.n], self.values[self.n] = frame, time, values
+        self.n += 1
 
 
 def _times(frames: list[int], times: list[float]) -> list[rr.TimeColumn]:
