@@ -182,3 +182,18 @@ def test_pipeline_circle_and_horizon_on_the_demo_scene():
     ok = np.isfinite(truth) & np.isfinite(result.horizon.rows)
     assert ok.sum() > 0.9 * np.isfinite(truth).sum()
     assert np.median(np.abs(result.horizon.rows[ok] - truth[ok])) < 2.0
+
+
+def test_search_zones_exclude_ground_modes():
+    from wfviz.horizon import Horizon, search_zones
+    valid = np.ones((40, 50), dtype=bool)
+    horizon = Horizon(np.full(50, 20.0))
+    sky_rows = np.nonzero(search_zones(valid, horizon, 2.0, "always", False)[0].any(axis=1))[0]
+    assert sky_rows.max() < 18                       # the paper: deep sky only
+    for mode, fisheye in (("auto", False), ("never", True)):
+        region, zones = search_zones(valid, horizon, 2.0, mode, fisheye)
+        assert region.all() and len(zones) == 2 and not (zones[0] & zones[1]).any()
+    region, zones = search_zones(valid, horizon, 2.0, "auto", True)   # fisheye sky view
+    assert zones is None and not region[30].any()
+    region, zones = search_zones(valid, None, 2.0, "never", False)    # no horizon: one zone
+    assert region.all() and zones is None

@@ -21,14 +21,21 @@ import numpy as np
 from wfviz.config import DefectsConfig
 
 
+_DR, _DC = np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij")
+
+
 def median3(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, exclude_centre: bool = True) -> np.ndarray:
     """Median of each listed pixel's 3x3 neighbourhood (edge-replicated), optionally without it."""
     h, w = image.shape
-    dr, dc = np.meshgrid([-1, 0, 1], [-1, 0, 1], indexing="ij")
-    keep = ~((dr == 0) & (dc == 0)) if exclude_centre else np.ones_like(dr, bool)
-    rr = np.clip(rows[:, None] + dr[keep][None, :], 0, h - 1)
-    cc = np.clip(cols[:, None] + dc[keep][None, :], 0, w - 1)
+    keep = ~((_DR == 0) & (_DC == 0)) if exclude_centre else np.ones_like(_DR, bool)
+    rr = np.clip(rows[:, None] + _DR[keep][None, :], 0, h - 1)
+    cc = np.clip(cols[:, None] + _DC[keep][None, :], 0, w - 1)
     return np.median(image[rr, cc].astype(np.float64), axis=1)
+
+
+def _where(mask: np.ndarray) -> np.ndarray:
+    """Flat indices of the non-zero pixels of an OpenCV 0/255 mask (via numpy's fast bool path)."""
+    return np.flatnonzero(np.bitwise_and(mask, 1, out=mask).view(bool))
 
 
 class BadPixels:
@@ -57,18 +64,20 @@ class BadPixels:
         src = raw if raw.dtype in (np.uint8, np.uint16, np.float32) else raw.astype(np.float32)
         dev = cv2.subtract(src, cv2.medianBlur(src, 3), dtype=cv2.CV_32F)
         w = raw.shape[1]
-        # seen: a 0/1 mask of this frame's hot candidates (spike above threshold and above
-        # spike_ratio of the residual) and dead ones (more than 2 thresholds below the median)
-        res = residual if residual.dtype == np.float32 else residual.astype(np.float32)
-        seen = cv2.compare(dev, float(threshold), cv2.CMP_GT)
-        seen &= cv2.compare(dev, np.multiply(res, np.float32(self.cfg.spike_ratio)), cv2.CMP_GE)
-        seen |= cv2.compare(dev, -2.0 * float(threshold), cv2.CMP_LT)
+        # this frame's hot candidates (spike above the threshold and at least spike_ratio of the
+        # residual; few pixels, so the ratio is tested on those only) and dead ones (more than
+        # two thresholds below the median)
+        cand = _where(cv2.compare(dev, float(threshold), cv2.CMP_GT))
+        ratio = np.float32(self.cfg.spike_ratio)
+        hot = cand[dev.ravel()[cand] >= ratio * residual.ravel()[cand].astype(np.float32)]
+        seen = [hot, _where(cv2.compare(dev, -2.0 * float(threshold), cv2.CMP_LT))]
         if len(self.flagged):  # flagged pixels were cleaned before detection: test them raw
             r, c = self.flagged[:, 0], self.flagged[:, 1]
-            seen[r, c] |= (np.abs(dev[r, c]) > threshold).astype(np.uint8) * 255
-        ev = self.evidence  # e <- (1 - rate) e + rate [seen], in one pass
-        cv2.addWeighted(ev, 1.0 - self.cfg.rate, seen, self.cfg.rate / 255.0, 0.0, dst=ev,
-                        dtype=cv2.CV_32F)
+            still = np.abs(dev[r, c]) > threshold
+            seen.append(r[still] * w + c[still])
+        ev = self.evidence  # e <- (1 - rate) e (+ rate where seen)
+        ev *= np.float32(1.0 - self.cfg.rate)
+        ev.ravel()[np.unique(np.concatenate(seen))] += np.float32(self.cfg.rate)
         idx = np.flatnonzero(ev >= self.cfg.flag_level)
         new = np.column_stack([idx // w, idx % w])
         changed = new.shape != self.flagged.shape or not np.array_equal(new, self.flagged)
