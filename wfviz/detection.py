@@ -44,8 +44,10 @@ def adaptive_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float)
     if not n:
         return float("inf")
     # sums in double precision: twice as fast as cv2.meanStdDev with a mask
-    inside = cv2.multiply(residual, mask, dtype=cv2.CV_32F) if residual.dtype != np.float64 \
-        else residual * mask
+    if residual.dtype in (np.uint8, np.uint16, np.int16, np.float32):
+        inside = cv2.multiply(residual, mask, dtype=cv2.CV_32F)
+    else:
+        inside = residual.astype(np.float64) * mask
     mean = cv2.sumElems(inside)[0] / n
     var = cv2.norm(inside, cv2.NORM_L2SQR) / n - mean * mean
     return float(mean + k_sigma * max(np.sqrt(max(var, 0.0)), 1e-6))
