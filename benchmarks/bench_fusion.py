@@ -21,35 +21,20 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
-import time  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wfviz.config import FusionConfig, load_config  # noqa: E402
-from wfviz.frames import Frame  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers.fusion import FusionTracker  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from step_timing import time_steps  # noqa: E402
+
 STAGES = ["defects", "mask", "horizon", "windows", "suppress", "detect", "associate", "kalman", "total"]
-
-
-def run_once(frames: list[Frame], config: FusionConfig
-             ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(frames, stages) ms per stage, (frames,) wall and CPU ms per step, (frames,) global flags."""
-    tracker = FusionTracker(config)
-    stages = np.zeros((len(frames), len(STAGES)))
-    wall = np.zeros(len(frames))
-    cpu = np.zeros(len(frames))
-    glob = np.zeros(len(frames), dtype=bool)
-    for i, f in enumerate(frames):
-        c0, t0 = time.thread_time(), time.perf_counter()
-        r = tracker.step(f)
-        wall[i] = (time.perf_counter() - t0) * 1e3
-        cpu[i] = (time.thread_time() - c0) * 1e3
-        stages[i] = [r.timings.get(s, 0.0) for s in STAGES]
-        glob[i] = r.global_detection
-    return stages, wall, cpu, glob
 
 
 def main() -> None:
@@ -66,13 +51,11 @@ def main() -> None:
     clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
     frames = list(clip.frames())
     h, w = frames[0].image.shape
-    run_once(frames[:20], config)  # warm-up (imports, allocator, caches)
-    results = [run_once(frames, config) for _ in range(args.runs)]
-    stages = np.median([r[0] for r in results], axis=0)
-    wall = np.median([r[1] for r in results], axis=0)
-    cpu = np.median([r[2] for r in results], axis=0)
-    glob = results[0][3]
-    if any((r[3] != glob).any() for r in results):
+    t = time_steps(lambda: FusionTracker(config), frames, args.runs, STAGES, warmup=20,
+                   extra=lambda r: r.global_detection)
+    stages, wall, cpu = t.table, t.wall, t.cpu
+    glob = t.extra[0].astype(bool)
+    if (t.extra != t.extra[0]).any():
         print("warning: runs differ in their global-detection frames")
 
     print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "

@@ -21,7 +21,9 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
+import sys  # noqa: E402
 import time  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
@@ -32,21 +34,11 @@ from wfviz.starfield import segmentation as seg  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from step_timing import time_steps  # noqa: E402
+
 STAGES = ["segment", "register", "candidates", "chains", "resegment", "total"]
 PAPER_MS = 768.7  # the paper's mean per 1024x1024 frame (MATLAB-era, AMD dual core 2.3 GHz)
-
-
-def run_once(frames: list[Frame], config: StarfieldConfig) -> tuple[np.ndarray, np.ndarray]:
-    """(frames, stages) ms per stage and (frames,) wall ms per step."""
-    tracker = StarfieldTracker(config)
-    stages = np.zeros((len(frames), len(STAGES)))
-    wall = np.zeros(len(frames))
-    for i, f in enumerate(frames):
-        t0 = time.perf_counter()
-        r = tracker.step(f)
-        wall[i] = (time.perf_counter() - t0) * 1e3
-        stages[i] = [r.timings.get(s, 0.0) for s in STAGES]
-    return stages, wall
 
 
 def segmentation_steps(frames: list[Frame], config: StarfieldConfig, runs: int) -> dict[str, np.ndarray]:
@@ -88,10 +80,8 @@ def main() -> None:
     clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
     frames = list(clip.frames())
     h, w = frames[0].image.shape
-    run_once(frames[:8], config)  # warm-up (imports, allocator, caches)
-    results = [run_once(frames, config) for _ in range(args.runs)]
-    stages = np.median([r[0] for r in results], axis=0)
-    wall = np.median([r[1] for r in results], axis=0)
+    t = time_steps(lambda: StarfieldTracker(config), frames, args.runs, STAGES, warmup=8)
+    stages, wall = t.table, t.wall
 
     print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "
           f"({platform.machine()}, Python {platform.python_version()}, OpenCV {cv2.__version__}); "

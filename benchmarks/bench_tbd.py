@@ -20,34 +20,20 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import platform  # noqa: E402
-import time  # noqa: E402
+import sys  # noqa: E402
+from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wfviz.config import TBDConfig, load_config  # noqa: E402
-from wfviz.frames import Frame  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers.tbd import STAGES, TBDTracker  # noqa: E402
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from step_timing import time_steps  # noqa: E402
+
 COLUMNS = list(STAGES) + ["total"]
-
-
-def run_once(frames: list[Frame], config: TBDConfig) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(frames, stages) ms per stage, (frames,) wall and CPU ms per step, (frames,) regions."""
-    tracker = TBDTracker(config)
-    stages = np.zeros((len(frames), len(COLUMNS)))
-    wall = np.zeros(len(frames))
-    cpu = np.zeros(len(frames))
-    regions = np.zeros(len(frames))
-    for i, f in enumerate(frames):
-        c0, t0 = time.thread_time(), time.perf_counter()
-        r = tracker.step(f)
-        wall[i] = (time.perf_counter() - t0) * 1e3
-        cpu[i] = (time.thread_time() - c0) * 1e3
-        stages[i] = [r.timings.get(s, 0.0) for s in COLUMNS]
-        regions[i] = len(r.regions)
-    return stages, wall, cpu, regions
 
 
 def main() -> None:
@@ -65,12 +51,10 @@ def main() -> None:
     clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames, snr=args.snr)
     frames = list(clip.frames())
     h, w = frames[0].image.shape
-    run_once(frames[:5], config)  # warm-up (imports, allocator, caches)
-    results = [run_once(frames, config) for _ in range(args.runs)]
-    stages = np.median([r[0] for r in results], axis=0)
-    wall = np.median([r[1] for r in results], axis=0)
-    cpu = np.median([r[2] for r in results], axis=0)
-    regions = results[0][3]
+    t = time_steps(lambda: TBDTracker(config), frames, args.runs, COLUMNS, warmup=5,
+                   extra=lambda r: len(r.regions))
+    stages, wall, cpu = t.table, t.wall, t.cpu
+    regions = t.extra[0]
     f = config.filter
     print(f"{args.scenario} seed {args.seed}: {len(frames)} frames {w}x{h}, {args.runs} runs, one core "
           f"({platform.machine()}, Python {platform.python_version()}, numpy {np.__version__}, "

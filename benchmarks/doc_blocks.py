@@ -1,7 +1,10 @@
-"""Replace a generated block between two HTML-comment markers in a docs page."""
+"""Helpers for generated docs: replace a marked block in a page, describe the machine."""
 
 from __future__ import annotations
 
+import importlib.metadata as md
+import os
+import platform
 import re
 import sys
 from pathlib import Path
@@ -22,3 +25,12 @@ def write_block(doc: Path, begin: str, end: str, block: str, heading: str | None
                   text, flags=re.S)
     doc.write_text(text, encoding="utf-8")
     print(f"wrote {doc}")
+
+
+def machine(packages: tuple[str, ...] = ()) -> str:
+    """CPU model, cores, OS, Python and the installed versions of ``packages``."""
+    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
+                  if ln.startswith("model name")), platform.processor() or "unknown CPU")
+    versions = "".join(f", {p} {md.version(p)}" for p in packages)
+    return (f"{model}, {os.cpu_count()} cores ({platform.system()} {platform.release()}), "
+            f"Python {platform.python_version()}{versions}")

@@ -31,7 +31,6 @@ os.environ.setdefault("MKL_NUM_THREADS", "1")
 
 import argparse  # noqa: E402
 import importlib.metadata as md  # noqa: E402
-import platform  # noqa: E402
 import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
@@ -51,10 +50,12 @@ from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers import make_tracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import write_block  # noqa: E402
+from doc_blocks import machine, write_block  # noqa: E402
+from step_timing import time_steps  # noqa: E402
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
 SECTIONS = ("trackers", "record", "decode", "peers")
+PACKAGES = ("numpy", "opencv-python-headless", "scipy", "rerun-sdk")  # versions in the table heads
 # tracker -> (clip, budget ms per frame from the performance issue)
 TRACKER_CASES = {
     "gewc": ("demo (640x512, 180°, 4 targets)", 2.0),
@@ -93,40 +94,11 @@ def one_core() -> str:
     return f"CPU {cpu}"
 
 
-def machine() -> str:
-    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                  if ln.startswith("model name")), platform.processor() or "unknown CPU")
-    versions = ", ".join(f"{p} {md.version(p)}" for p in ("numpy", "opencv-python-headless", "scipy", "rerun-sdk"))
-    return (f"{model}, {os.cpu_count()} cores ({platform.system()} {platform.release()}), "
-            f"Python {platform.python_version()}, {versions}")
-
-
 def stats(values: np.ndarray) -> tuple[float, float, float]:
     return float(np.median(values)), float(np.mean(values)), float(np.percentile(values, 95))
 
 
 # -- trackers ---------------------------------------------------------------------------------
-def time_tracker(name: str, clip: MemoryClip, runs: int) -> tuple[list[str], np.ndarray, np.ndarray]:
-    """(stages, per-frame stage ms (frames, stages), per-frame step ms), medians over runs."""
-    per_run, steps = [], []
-    stages: list[str] = []
-    frames = list(clip.frames())
-    for r in range(runs + 1):  # run 0 warms up (imports, allocator, caches)
-        tracker = make_tracker(name)
-        rows, wall = [], []
-        for f in frames:
-            t0 = time.perf_counter()
-            result = tracker.step(f)
-            wall.append((time.perf_counter() - t0) * 1e3)
-            if not stages:
-                stages = [s for s in result.timings if s != "total"]
-            rows.append([result.timings.get(s, 0.0) for s in stages])
-        if r:
-            per_run.append(rows)
-            steps.append(wall)
-    return stages, np.median(np.array(per_run), axis=0), np.median(np.array(steps), axis=0)
-
-
 def trackers_section(runs: int) -> str:
     out = ["### Trackers, per stage (ms per frame, one core, decoding excluded)", ""]
     summary = ["| tracker | clip | frames | median | mean | p95 | frames/s (mean) | budget | met |",
@@ -134,7 +106,8 @@ def trackers_section(runs: int) -> str:
     detail = []
     for name, (desc, budget) in TRACKER_CASES.items():
         clip = case_frames(name)
-        stages, table, step = time_tracker(name, clip, runs)
+        t = time_steps(lambda: make_tracker(name), list(clip.frames()), runs)  # warm-up: one run
+        stages, table, step = t.stages, t.table, t.wall
         med, mean, p95 = stats(step)
         summary.append(f"| {name} | {desc} | {len(step)} | **{med:.2f}** | {mean:.2f} | {p95:.2f} | "
                        f"{1e3 / mean:,.0f} | {budget:g} | {'yes' if med <= budget else 'no'} |")
@@ -330,7 +303,7 @@ def main() -> int:
     ap.add_argument("--write-doc", action="store_true", help=f"update {DOC.name}")
     args = ap.parse_args()
     pinned = one_core()
-    head = (f"Measured {time.strftime('%Y-%m-%d')} on {machine()}; one core ({pinned}), "
+    head = (f"Measured {time.strftime('%Y-%m-%d')} on {machine(PACKAGES)}; one core ({pinned}), "
             f"`python benchmarks/performance.py --runs {args.runs}`.")
     print(head, flush=True)
     blocks = {"trackers": lambda: trackers_section(args.runs), "record": lambda: record_section(args.runs),

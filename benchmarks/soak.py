@@ -14,8 +14,7 @@ from __future__ import annotations
 import argparse
 import gc
 import json
-import os
-import platform
+import sys
 import tempfile
 import time
 import warnings
@@ -25,18 +24,14 @@ from wfviz.run import run
 from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import make_tracker
 
+sys.path.insert(0, str(Path(__file__).resolve().parent))
+from doc_blocks import machine  # noqa: E402
+
 
 def rss_mb() -> tuple[float, float]:
     """(current, peak) resident set size of this process in MB, from /proc."""
     fields = dict(line.split(":", 1) for line in Path("/proc/self/status").read_text().splitlines() if ":" in line)
     return int(fields["VmRSS"].split()[0]) / 1024, int(fields["VmHWM"].split()[0]) / 1024
-
-
-def machine() -> str:
-    """CPU model, cores and Python version."""
-    model = next((ln.split(":", 1)[1].strip() for ln in Path("/proc/cpuinfo").read_text().splitlines()
-                  if ln.startswith("model name")), platform.processor() or "unknown CPU")
-    return f"{model}, {os.cpu_count()} cores, Python {platform.python_version()}, {platform.system()}"
 
 
 def main() -> int:

@@ -14,15 +14,15 @@ from rerun.chunk import RrdReader
 from wfviz.clip import ClipError, open_clip
 import pyarrow as pa
 
-from wfviz.record.recorder import bar_chart, bar_chart_arrays, class_ids, track_colors
+from wfviz.record.recorder import bar_chart_arrays, bar_chart_columns, class_ids, track_colors
 
 
 def test_bar_chart_batches_equal_rerun_bar_chart():
     w = np.random.default_rng(0).random(8)
     ref = list(rr.BarChart(w, color=(12, 200, 7)).as_component_batches())
-    fast = bar_chart(w, (12, 200, 7))
-    assert [b.component_descriptor() for b in fast] == [b.component_descriptor() for b in ref]
-    for a, b in zip(fast, ref):
+    columns = bar_chart_columns(w[None, :], np.array([(12, 200, 7)]))
+    assert [c.component_descriptor() for c in columns] == [b.component_descriptor() for b in ref]
+    for a, b in zip((c.component_batch for c in columns), ref):
         assert a.as_arrow_array().equals(b.as_arrow_array())
 
 

@@ -70,6 +70,31 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
 HISTORY = 3  # reported positions kept per track: eq. 15 reads s(k-1) and s(k-3)
 
 
+def _blank(n: int) -> dict[str, np.ndarray]:
+    """The per-track arrays of ``n`` empty rows (TrackManager's struct of arrays)."""
+    return dict(
+        ids=np.zeros(n, dtype=np.int64),
+        x=np.zeros((n, 4)),
+        P=np.zeros((n, 4, 4)),
+        hits=np.zeros(n, dtype=np.int64),
+        misses=np.zeros(n, dtype=np.int64),
+        confirmed=np.zeros(n, dtype=bool),
+        meeting=np.zeros(n, dtype=bool),
+        meeting_frames=np.zeros(n, dtype=np.int64),
+        score_sum=np.zeros(n),                  # sum of the significance of the hits
+        origin=np.zeros((n, 2)),                # birth position, moved with the camera
+        history=np.zeros((n, HISTORY, 2)),      # last reported (x, y), oldest first
+        history_len=np.zeros(n, dtype=np.int64),
+        velocities=np.zeros((n, 3, 2)),         # filtered (vx, vy) of the last updates
+        velocities_len=np.zeros(n, dtype=np.int64),
+        innovation=np.full((n, 2), np.nan),     # NaN: not updated this frame
+        _S_inv=np.zeros((n, 2, 2)),             # inverse innovation covariances (predict)
+    )
+
+
+_FIELDS = tuple(_blank(0))
+
+
 class TrackManager:
     """Tracks with CV Kalman filters, confirmed after m hits, deleted after n misses.
 
@@ -85,30 +110,9 @@ class TrackManager:
         self._next_id = 1
         self._frame = 0
         self._events: list[TrackEvent] = []
-        self._resize(0)
+        self.__dict__.update(_blank(0))
         self._preds: list[Prediction] | None = None
         self._pred_arrays: tuple[np.ndarray, ...] = ()
-
-    def _resize(self, n: int) -> None:
-        self.ids = np.zeros(n, dtype=np.int64)
-        self.x = np.zeros((n, 4))
-        self.P = np.zeros((n, 4, 4))
-        self.hits = np.zeros(n, dtype=np.int64)
-        self.misses = np.zeros(n, dtype=np.int64)
-        self.confirmed = np.zeros(n, dtype=bool)
-        self.meeting = np.zeros(n, dtype=bool)
-        self.meeting_frames = np.zeros(n, dtype=np.int64)
-        self.score_sum = np.zeros(n)                 # sum of the significance of the hits
-        self.origin = np.zeros((n, 2))               # birth position, moved with the camera
-        self.history = np.zeros((n, HISTORY, 2))     # last reported (x, y), oldest first
-        self.history_len = np.zeros(n, dtype=np.int64)
-        self.velocities = np.zeros((n, 3, 2))        # filtered (vx, vy) of the last updates
-        self.velocities_len = np.zeros(n, dtype=np.int64)
-        self.innovation = np.full((n, 2), np.nan)    # NaN: not updated this frame
-        self._S_inv = np.zeros((n, 2, 2))            # inverse innovation covariances (predict)
-
-    _FIELDS = ("ids", "x", "P", "hits", "misses", "confirmed", "meeting", "meeting_frames", "score_sum",
-               "origin", "history", "history_len", "velocities", "velocities_len", "innovation", "_S_inv")
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -309,7 +313,7 @@ class TrackManager:
                                           f"{self.hits[i]} hits)")
         if delete.any():
             keep = ~delete
-            for name in self._FIELDS:
+            for name in _FIELDS:
                 setattr(self, name, getattr(self, name)[keep])
         self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores)
         return self._events
@@ -320,19 +324,18 @@ class TrackManager:
             return
         first = self._next_id
         self._next_id += k
-        new = TrackManager.__new__(TrackManager)
-        TrackManager._resize(new, k)
-        new.ids = np.arange(first, first + k, dtype=np.int64)
-        new.x[:, :2] = births
-        new.P[:] = self.P0
-        new.hits[:] = 1
-        new.score_sum[:] = 0.0 if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
-        new.origin[:] = births
-        new.history[:, -1] = births
-        new.history_len[:] = 1
-        for name in self._FIELDS:
-            setattr(self, name, np.concatenate([getattr(self, name), getattr(new, name)]))
-        for (bx, by), tid in zip(births.tolist(), new.ids.tolist()):
+        new = _blank(k)
+        new["ids"] = np.arange(first, first + k, dtype=np.int64)
+        new["x"][:, :2] = births
+        new["P"][:] = self.P0
+        new["hits"][:] = 1
+        new["score_sum"][:] = 0.0 if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
+        new["origin"][:] = births
+        new["history"][:, -1] = births
+        new["history_len"][:] = 1
+        for name in _FIELDS:
+            setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
+        for (bx, by), tid in zip(births.tolist(), new["ids"].tolist()):
             self._events.append(TrackEvent(self._frame, "born", tid,
                                            f"track {tid} tentative track started at ({bx:.1f}, {by:.1f})"))
 

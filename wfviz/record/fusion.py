@@ -67,10 +67,5 @@ class FusionRecorder(Recorder):
             if x.track_id in confirmed:
                 self.scalar(f"fusion/{x.track_id}/phi", x.phi)
                 self.scalar(f"fusion/{x.track_id}/cost", x.cost)
-        for tid, nu in result.innovations.items():
-            if tid in confirmed:
-                self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
-        for p in result.predictions:
-            if p.confirmed:
-                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
+        self.log_kalman(result)
 

@@ -42,9 +42,4 @@ class GEWCRecorder(Recorder):
         for x in m:
             if x.track_id in confirmed:
                 self.bar(f"gewc/{x.track_id}", x.weights, track_color(x.track_id))
-        for tid, nu in result.innovations.items():
-            if tid in confirmed:
-                self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
-        for p in result.predictions:
-            if p.confirmed:
-                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
+        self.log_kalman(result)

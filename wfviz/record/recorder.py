@@ -101,16 +101,9 @@ def bar_chart_arrays(values: np.ndarray, colors: np.ndarray) -> tuple[pa.Array, 
     return tensor, rgba
 
 
-def bar_chart(values: np.ndarray, color: tuple[int, int, int]) -> list[rr.DescribedComponentBatch]:
-    """The component batches of ``rr.BarChart(values, color=color)`` (1-D float64 values),
-    built straight in Arrow: the same data, about 10x faster than Rerun's tensor converter."""
-    desc, color_desc = _bar_chart_template()[:2]
-    tensor, rgba = bar_chart_arrays(np.asarray(values, dtype=np.float64).reshape(1, -1), np.array([color]))
-    return [rr.DescribedComponentBatch(_Batch(tensor), desc), rr.DescribedComponentBatch(_Batch(rgba), color_desc)]
-
-
 def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.ComponentColumn]:
-    """``BarChart`` columns for ``send_columns``: one bar chart per row of ``values``."""
+    """``BarChart`` columns for ``send_columns``: one bar chart per row of ``values``, built
+    straight in Arrow (Rerun's own tensor converter takes ~0.3 ms a row and cannot batch)."""
     desc, color_desc = _bar_chart_template()[:2]
     tensor, rgba = bar_chart_arrays(values, colors)
     return [rr.ComponentColumn(desc, _Batch(tensor)), rr.ComponentColumn(color_desc, _Batch(rgba))]
@@ -342,6 +335,17 @@ class Recorder:
     def text(self, message: str, level: str = "INFO", path: str = "log") -> None:
         """A ``TextLog`` line at the current frame (sent in columns)."""
         self.columns.text(path, *self._now, message, level)
+
+    def log_kalman(self, result: FrameResult) -> None:
+        """``kalman/<id>/innovation`` (tracks updated this frame, for trackers whose results
+        carry innovations) and ``kalman/<id>/cov_trace`` of the confirmed tracks."""
+        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        for tid, nu in getattr(result, "innovations", {}).items():
+            if tid in confirmed:
+                self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
+        for p in result.predictions:
+            if p.confirmed:
+                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
 
     def log_stages(self, result: FrameResult, images: bool) -> None:
         """Tracker-specific stages; overridden by each tracker's adapter."""

@@ -94,9 +94,7 @@ class StarfieldRecorder(Recorder):
             level = "WARN" if reg.method == "none" else "INFO"
             what = "no registration" if reg.method == "none" else "consensus fallback"
             self.text(f"registration: {what} ({reg.note})", level=level)
-        for p in result.predictions:
-            if p.confirmed:
-                self.scalar(f"kalman/{p.track_id}/cov_trace", p.cov_trace)
+        self.log_kalman(result)
         self._chain_points.extend(result.chain_points)
 
     def _log_chains(self, result: StarfieldResult) -> None:
