@@ -83,3 +83,28 @@ def test_synthetic_input_is_lazy_and_checked():
         open_clip("synth:nope")
     with pytest.raises(ClipError, match="seed"):
         open_clip("synth:lowsnr-tbd:x")
+
+
+def test_static_clutter_stage_is_logged(tmp_path):
+    """A textured 'ground' of fixed spots: the static-clutter stage marks them in the recording."""
+    rng = np.random.default_rng(3)
+    spots = rng.uniform(8, 88, (14, 2))
+    yy, xx = np.mgrid[0:96, 0:96]
+    frames = np.full((24, 96, 96), 40.0) + rng.normal(0, 1.0, (24, 96, 96))
+    for x, y in spots:
+        frames += 30.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 1.5)
+    clip = tmp_path / "ground.npy"
+    np.save(clip, np.clip(frames, 0, 255).astype(np.uint8))
+    cfg = tmp_path / "c.toml"
+    cfg.write_text("[horizon]\nenabled = false\n[circle]\nenabled = false\n"
+                   "[clutter]\nenabled = true\nlag = 5\n")
+    rrd = tmp_path / "g.rrd"
+    proc = subprocess.run([sys.executable, "-m", "wfviz", "record", str(clip), "--config", str(cfg),
+                           "-o", str(rrd), "--no-images"], capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    static = _scalars(rrd, "/detection/static")
+    counts = _scalars(rrd, "/detection/count")
+    assert sorted(static) == list(range(24))
+    assert all(static[f] == 0 for f in range(5))             # undecided before the lag
+    assert all(static[f] == counts[f] >= 10 for f in range(10, 24))  # every fixed spot
+    assert any(c.entity_path == "/camera/clutter" for c in RrdReader(rrd).stream())

@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import numpy as np
+import pytest
 
 from wfviz import kalman
 from wfviz.config import KalmanConfig, TrackingConfig
@@ -80,9 +81,12 @@ def test_no_measurement_goes_to_two_tracks():
     assert len(pairs) == 1
 
 
-def test_crossing_keeps_both_identities():
+@pytest.mark.parametrize("tcfg", [TrackingConfig(),
+                                  TrackingConfig(meeting_overlap=True, meeting_misses=True)],
+                         ids=["paper", "cluttered-scene-options"])
+def test_crossing_keeps_both_identities(tcfg):
     """Two targets crossing at ~110°: meeting mode carries both identities through."""
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    mgr = TrackManager(KalmanConfig(), tcfg)
     rng = np.random.default_rng(0)
     n = 60
     a = np.array([[20 + 2.0 * k, 50 + 1.2 * k] for k in range(n)])

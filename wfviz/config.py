@@ -118,8 +118,35 @@ class TrackingConfig:
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))
     max_meeting_frames: int = field(default=40, metadata=_range(1, None))
     meeting_velocity: str = field(default="kalman", metadata={"choices": ("kalman", "eq15")})
+    meeting_overlap: bool = False   # meet only when the two gates overlap (not in the paper)
+    meeting_misses: bool = False    # in meeting mode, an empty gate counts a miss (not in the paper)
     trail_length: int = field(default=60, metadata=_range(2, None))
     compensate_motion: bool = False
+
+
+@dataclass(frozen=True)
+class ClutterConfig:
+    """Static clutter: points fixed in the scene amid many detections (textured ground).
+
+    Not in the paper (docs/pipeline.md §9). A detection is *static* when, in scene coordinates
+    (camera motion removed), a detection lay within ``radius`` px of it ``lag`` (±2) frames
+    earlier, and *crowded* when at least ``min_neighbours`` other detections lie within
+    ``neighbourhood`` px (0: anywhere in the frame). Detections ``bright`` times above the
+    threshold or more are never clutter. A track whose crowded hits are mostly static (running
+    mean with weight ``memory`` above ``max_static`` after ``min_known`` decided hits) is not
+    confirmed, and a confirmed one is deleted. ``wait``: hold confirmation until decided.
+    """
+
+    enabled: bool = False
+    lag: int = field(default=10, metadata=_range(2, 100))
+    radius: float = field(default=1.5, metadata=_range(0.1, None))
+    neighbourhood: float = field(default=0.0, metadata=_range(0.0, None))
+    min_neighbours: int = field(default=10, metadata=_range(1, None))
+    bright: float = field(default=4.0, metadata=_range(0.0, None))
+    max_static: float = field(default=0.5, metadata=_range(0.0, 1.0))
+    min_known: int = field(default=2, metadata=_range(1, None))
+    memory: float = field(default=0.25, metadata=_range(0.01, 1.0))
+    wait: bool = False
 
 
 @dataclass(frozen=True)
@@ -134,6 +161,7 @@ class GEWCConfig:
     centroid: CentroidConfig = CentroidConfig()
     kalman: KalmanConfig = KalmanConfig()
     tracking: TrackingConfig = TrackingConfig()
+    clutter: ClutterConfig = ClutterConfig()
 
     def validate(self) -> None:
         """Cross-field checks (raise ConfigError)."""
@@ -192,6 +220,9 @@ class FusionConfig:
                               "(candidates found in the search windows carry no significance); keep 0")
         if getattr(t, "compensate_motion", False):
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
+        if getattr(t, "meeting_misses", False):
+            raise ConfigError("tracking.meeting_misses is not supported by the fusion tracker "
+                              "(it associates in its own search windows)")
 
 
 @dataclass(frozen=True)

@@ -81,6 +81,7 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         confirmed=np.zeros(n, dtype=bool),
         meeting=np.zeros(n, dtype=bool),
         meeting_frames=np.zeros(n, dtype=np.int64),
+        meet_again=np.ones(n, dtype=bool),      # False after a meeting until the next hit
         score_sum=np.zeros(n),                  # sum of the significance of the hits
         origin=np.zeros((n, 2)),                # birth position, moved with the camera
         history=np.zeros((n, HISTORY, 2)),      # last reported (x, y), oldest first
@@ -88,6 +89,8 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         velocities=np.zeros((n, 3, 2)),         # filtered (vx, vy) of the last updates
         velocities_len=np.zeros(n, dtype=np.int64),
         innovation=np.full((n, 2), np.nan),     # NaN: not updated this frame
+        clutter=np.zeros(n),                    # running mean of the hits' static-clutter labels
+        clutter_known=np.zeros(n, dtype=np.int64),  # hits with a decided label
         _S_inv=np.zeros((n, 2, 2)),             # inverse innovation covariances (predict)
     )
 
@@ -113,6 +116,8 @@ class TrackManager:
         self.__dict__.update(_blank(0))
         self._preds: list[Prediction] | None = None
         self._pred_arrays: tuple[np.ndarray, ...] = ()
+        self.nearest = np.zeros(0, dtype=np.int64)  # per track: nearest detection near it (-1 none)
+        self.clutter_rule: tuple[float, int, float, bool] | None = None  # (max_static, min_known, memory, wait)
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -167,10 +172,9 @@ class TrackManager:
         for i in np.nonzero(self.meeting & (self.history_len >= 3))[0]:
             self.x[i] = self._meeting_state(i)
         self._update_meeting()
+        half = self._gate_half_sizes()
         S = kalman.innovation_covariance(self.P, self.model)
         self._S_inv = np.linalg.inv(S)
-        half = np.clip(self.kcfg.gate_sigma * np.sqrt(S[:, [0, 1], [0, 1]]),
-                       self.kcfg.gate_min, self.kcfg.gate_max)
         xy = self.x[:, :2].copy()
         trace = np.trace(self.P, axis1=1, axis2=2)
         preds = [Prediction(*row) for row in zip(
@@ -180,16 +184,26 @@ class TrackManager:
         self._pred_arrays = (xy, half, self.confirmed.copy(), self.meeting.copy())
         return preds
 
+    def _gate_half_sizes(self) -> np.ndarray:
+        """Gate half sizes (N, 2): gate_sigma * sqrt(S_ii), clipped to [gate_min, gate_max]."""
+        S = kalman.innovation_covariance(self.P, self.model)
+        return np.clip(self.kcfg.gate_sigma * np.sqrt(S[:, [0, 1], [0, 1]]),
+                       self.kcfg.gate_min, self.kcfg.gate_max)
+
     def _update_meeting(self) -> None:
         conf = np.nonzero(self.confirmed)[0]
         close = np.zeros(len(self), dtype=bool)
         if conf.size > 1:
             pos = self.x[conf, :2]
-            d = np.hypot(*(pos[:, None, :] - pos[None, :, :]).transpose(2, 0, 1))
-            np.fill_diagonal(d, np.inf)
-            close[conf] = (d < self.tcfg.safety_distance).any(axis=1)
+            diff = pos[:, None, :] - pos[None, :, :]
+            near = np.hypot(diff[..., 0], diff[..., 1]) < self.tcfg.safety_distance
+            if self.tcfg.meeting_overlap:  # gates that overlap may share one merged blob
+                half = self._gate_half_sizes()[conf]
+                near &= (np.abs(diff) <= half[:, None, :] + half[None, :, :]).all(axis=2)
+            np.fill_diagonal(near, False)
+            close[conf] = near.any(axis=1)
         for i in conf[close[conf] | self.meeting[conf]]:
-            if close[i] and not self.meeting[i] and self.history_len[i] >= 3:
+            if close[i] and not self.meeting[i] and self.history_len[i] >= 3 and self.meet_again[i]:
                 self.meeting[i], self.meeting_frames[i] = True, 0
                 self.x[i] = self._meeting_state(i)
                 self._event("meeting_on", i, "within the safety distance: Kalman updates stop, "
@@ -199,6 +213,7 @@ class TrackManager:
                 expired = self.meeting_frames[i] > self.tcfg.max_meeting_frames
                 if not close[i] or expired:
                     self.meeting[i] = False
+                    self.meet_again[i] = False  # until its next measurement
                     self.P[i] = self.P0  # re-initialise the filter at the extrapolated state
                     why = "meeting lasted too long" if expired else "separated"
                     self._event("meeting_off", i, f"{why}: filter re-initialised")
@@ -221,11 +236,17 @@ class TrackManager:
         mode take no measurement, and tentative tracks take none inside a confirmed track's
         gate (so they cannot steal a meeting pair's detections). No detection is used twice.
         """
+        self.nearest = np.full(len(self), -1, dtype=np.int64)
         if not preds or len(xy) == 0:
             return {}
         centres, halves, confirmed, meeting = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
+        want_near = self.tcfg.meeting_misses or self.clutter_rule is not None
+        if want_near and len(preds) == len(self):  # near: within the gate, at most 2 gate_min
+            near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
+            dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
+            self.nearest = np.where(near.any(axis=1), dist.argmin(axis=1), -1)
         result: dict[int, int] = {}
         used = np.zeros(len(xy), dtype=bool)
         confirmed_gates = inside[confirmed].any(axis=0)
@@ -263,14 +284,19 @@ class TrackManager:
 
     # -- update ---------------------------------------------------------------------------
     def update(self, measurements: dict[int, tuple[float, float]], births: np.ndarray,
-               scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None
+               scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None,
+               clutter: dict[int, float] | None = None, birth_clutter: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
         ``scores`` / ``birth_scores``: the significance of each measurement / birth; a track is
         confirmed at ``confirm_hits`` hits when its mean significance also reaches
-        ``confirm_significance`` (0 = hits only, as in the paper). Returns the frame's events
-        (including meeting events from :meth:`predict`).
+        ``confirm_significance`` (0 = hits only, as in the paper). ``clutter`` /
+        ``birth_clutter``: static-clutter labels (:mod:`wfviz.clutter`; 1 static, 0 not, NaN
+        undecided) under ``clutter_rule`` = (max_static, min_known, memory): a track needs
+        ``min_known`` decided labels with a running mean ≤ ``max_static`` to be confirmed, and
+        a confirmed track above it is deleted. Returns the frame's events (including meeting
+        events from :meth:`predict`).
         """
         scores = scores or {}
         tc = self.tcfg
@@ -288,12 +314,19 @@ class TrackManager:
             self.velocities_len[idx] = np.minimum(self.velocities_len[idx] + 1, 3)
             self.hits[idx] += 1
             self.misses[idx] = 0
+            self.meet_again[idx] = True
             self.score_sum[idx] += np.array([scores.get(i, 0.0) for i in idx.tolist()])
+        if clutter:  # measured tracks, and meeting tracks with a detection near them
+            rows = np.array(sorted(clutter), dtype=np.int64)
+            self._add_clutter(rows, np.array([clutter[i] for i in rows.tolist()]))
         # history: the measurement, or the (coasting / extrapolated) state
         reported = self.x[:, :2].copy()
         reported[idx] = z
         self._push_history(np.arange(n), reported)
         missed = ~measured & ~self.meeting
+        if tc.meeting_misses:  # a meeting track with nothing in its gate has lost its target
+            missed |= self.meeting & (self.nearest < 0)
+            self.misses[self.meeting & (self.nearest >= 0)] = 0
         self.misses[missed] += 1
         moved = np.hypot(reported[:, 0] - self.origin[:, 0], reported[:, 1] - self.origin[:, 1])
         need = tc.confirm_significance
@@ -301,8 +334,19 @@ class TrackManager:
         confirm = (measured & ~self.confirmed & (self.hits >= tc.confirm_hits)
                    & ((need <= 0) | (mean_score >= need)) & (moved >= tc.min_displacement))
         delete = missed & (self.misses >= tc.max_misses)
+        static = np.zeros(n, dtype=bool)
+        if clutter is not None and self.clutter_rule is not None:
+            max_static, min_known, _, wait = self.clutter_rule
+            judged = self.clutter_known >= min_known
+            static = judged & (self.clutter > max_static)
+            confirm &= ~static & (judged | (not wait))
+            static &= self.confirmed & ~delete
+            delete |= static
         for i in np.nonzero(confirm | delete)[0].tolist():
-            if confirm[i]:
+            if static[i]:
+                self._event("deleted", i, f"deleted as static clutter (fixed in the scene among "
+                                          f"other detections in {self.clutter[i]:.0%} of recent hits)")
+            elif confirm[i]:
                 self.confirmed[i] = True
                 why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
                 why += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
@@ -315,10 +359,21 @@ class TrackManager:
             keep = ~delete
             for name in _FIELDS:
                 setattr(self, name, getattr(self, name)[keep])
-        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores)
+        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores, birth_clutter)
         return self._events
 
-    def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None) -> None:
+    def _add_clutter(self, rows: np.ndarray, labels: np.ndarray) -> None:
+        """Fold decided static-clutter labels into the tracks' running means."""
+        ok = ~np.isnan(labels)
+        rows, labels = rows[ok], labels[ok]
+        if rows.size and self.clutter_rule is not None:
+            a = self.clutter_rule[2]
+            first = self.clutter_known[rows] == 0
+            self.clutter[rows] = np.where(first, labels, (1 - a) * self.clutter[rows] + a * labels)
+            self.clutter_known[rows] += 1
+
+    def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None,
+               birth_clutter: np.ndarray | None = None) -> None:
         k = len(births)
         if not k:
             return
@@ -335,6 +390,8 @@ class TrackManager:
         new["history_len"][:] = 1
         for name in _FIELDS:
             setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
+        if birth_clutter is not None:
+            self._add_clutter(np.arange(len(self) - k, len(self)), np.asarray(birth_clutter, dtype=np.float64))
         for (bx, by), tid in zip(births.tolist(), new["ids"].tolist()):
             self._events.append(TrackEvent(self._frame, "born", tid,
                                            f"track {tid} tentative track started at ({bx:.1f}, {by:.1f})"))

@@ -32,6 +32,12 @@ class GEWCRecorder(Recorder):
         if result.camera_shift is not None:
             self.scalar("registration/dx", result.camera_shift[0])
             self.scalar("registration/dy", result.camera_shift[1])
+        if result.clutter is not None:  # static clutter stage (configs/real-gewc.toml)
+            static = result.clutter == 1
+            rec.log("camera/clutter", rr.Points2D(
+                result.detections.xy[static].astype(np.float32), radii=2.5,
+                colors=(255, 96, 0, 160), show_labels=False))
+            self.scalar("detection/static", int(static.sum()))
         m = result.measurements
         ids = [x.track_id for x in m]
         rec.log("camera/centroids", rr.Points2D(

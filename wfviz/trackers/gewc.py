@@ -8,6 +8,7 @@ import numpy as np
 
 from wfviz.background import suppress_background
 from wfviz.centroid import measure_many
+from wfviz.clutter import StaticClutter
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect, signal_to_clutter
@@ -45,6 +46,7 @@ class GEWCResult(FrameResult):
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
     camera_shift: tuple[float, float] | None  # (dx, dy) when tracking.compensate_motion
+    clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
 
 
 class GEWCTracker:
@@ -61,6 +63,11 @@ class GEWCTracker:
         self.bad = BadPixels(c.defects)
         self.motion = MotionEstimator() if c.tracking.compensate_motion else None
         self.imaging = ImagingMask(c.circle)
+        self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
+        if self.clutter is not None:
+            self.manager.clutter_rule = (c.clutter.max_static, c.clutter.min_known, c.clutter.memory,
+                                         c.clutter.wait)
+        self._offset = np.zeros(2)  # accumulated camera shift (scene -> image)
         self._region: np.ndarray | None = None
         self._zones: list[np.ndarray] | None = None
 
@@ -97,7 +104,9 @@ class GEWCTracker:
         if self.motion is not None:
             dx, dy, _ = self.motion.update(img)
             shift = (dx, dy)
+            self._offset += shift
             self.manager.shift(dx, dy)
+        labels = None if self.clutter is None else self._clutter_labels(dets)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         lap("associate")
@@ -111,7 +120,9 @@ class GEWCTracker:
         events = self.manager.update(
             {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
             scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
-            birth_scores=None if sig is None else sig[born])
+            birth_scores=None if sig is None else sig[born],
+            clutter=None if labels is None else self._track_clutter(labels, meas),
+            birth_clutter=None if labels is None else labels[born])
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -121,7 +132,30 @@ class GEWCTracker:
             horizon_updated=horizon_updated, suppressed=suppressed,
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
             bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed, camera_shift=shift,
+            clutter=labels,
         )
+
+    def _track_clutter(self, labels: np.ndarray, meas: dict[int, Measurement]) -> dict[int, float]:
+        """Each track's static-clutter label: its measurement's, or (meeting mode, no
+        measurement) that of the detection nearest its extrapolated position."""
+        mgr = self.manager
+        out = {int(i): float(labels[d]) for i, d in enumerate(mgr.nearest.tolist())
+               if d >= 0 and mgr.meeting[i]}
+        out.update({i: float(labels[m.detection]) for i, m in meas.items()})
+        return out
+
+    def _clutter_labels(self, dets: Detections) -> np.ndarray:
+        """Static-clutter labels (:mod:`wfviz.clutter`); ``clutter.bright`` spots are never clutter."""
+        labels = self.clutter.update(dets.xy, self._offset)
+        bright = self.config.clutter.bright
+        if bright > 0 and len(dets):
+            thr = dets.threshold
+            if dets.threshold_map is not None:
+                r = np.clip(np.rint(dets.xy[:, 1]).astype(np.int64), 0, dets.threshold_map.shape[0] - 1)
+                c = np.clip(np.rint(dets.xy[:, 0]).astype(np.int64), 0, dets.threshold_map.shape[1] - 1)
+                thr = dets.threshold_map[r, c]
+            labels[dets.peak >= bright * np.maximum(thr, 1e-12)] = 0.0
+        return labels
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray) -> dict[int, Measurement]:
