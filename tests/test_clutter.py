@@ -68,7 +68,7 @@ def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] |
 @pytest.mark.parametrize("wait", [False, True])
 def test_track_on_static_clutter_is_deleted_or_never_confirmed(wait):
     mgr = TrackManager(KalmanConfig(), TrackingConfig())
-    mgr.clutter_rule = (0.5, 2, 0.25, wait)
+    mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, min_known=2, memory=0.25, wait=wait)
     xy = [np.array([[40.0, 40.0]])] * 20
     labels = [np.array([np.nan])] * 10 + [np.array([1.0])] * 10  # decided from frame 10 on
     events = _run(mgr, xy, labels)
@@ -84,7 +84,7 @@ def test_track_on_static_clutter_is_deleted_or_never_confirmed(wait):
 
 def test_track_with_clean_labels_is_confirmed_as_usual():
     mgr = TrackManager(KalmanConfig(), TrackingConfig())
-    mgr.clutter_rule = (0.5, 2, 0.25, True)
+    mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, min_known=2, memory=0.25, wait=True)
     xy = [np.array([[40.0 + k, 40.0]]) for k in range(10)]
     events = _run(mgr, xy, [np.array([0.0])] * 10)
     assert [e.frame for e in events if e.kind == "confirmed"] == [5]
@@ -114,3 +114,11 @@ def test_meeting_track_that_loses_its_target_is_deleted_with_meeting_misses():
     events = _run(strict, frames)
     assert len(strict) == 0
     assert sorted(e.frame for e in events if e.kind == "deleted") == [14, 14]
+
+
+def test_a_spot_far_above_its_threshold_is_never_clutter():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10))
+    contrast = np.full(len(GROUND) + 1, 1.5)
+    contrast[0] = 6.0  # one ground spot 6x its threshold (bright = 4)
+    labels = [sc.update(xy, off, contrast) for xy, off in _frames(20)]
+    assert labels[-1][0] == 0 and (labels[-1][1:12] == 1).all()

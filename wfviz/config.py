@@ -119,7 +119,7 @@ class TrackingConfig:
     max_meeting_frames: int = field(default=40, metadata=_range(1, None))
     meeting_velocity: str = field(default="kalman", metadata={"choices": ("kalman", "eq15")})
     meeting_overlap: bool = False   # meet only when the two gates overlap (not in the paper)
-    meeting_misses: bool = False    # in meeting mode, an empty gate counts a miss (not in the paper)
+    meeting_misses: bool = False    # meeting mode: no detection near the extrapolation = a miss
     trail_length: int = field(default=60, metadata=_range(2, None))
     compensate_motion: bool = False
 

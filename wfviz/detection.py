@@ -36,6 +36,19 @@ class Detections:
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
+    def thresholds(self) -> np.ndarray:
+        """The threshold each detection passed (the local map at its position, if any)."""
+        if self.threshold_map is None:
+            return np.full(len(self), self.threshold, dtype=np.float64)
+        return sample_at(self.threshold_map, self.xy)
+
+
+def sample_at(values: np.ndarray, xy: np.ndarray) -> np.ndarray:
+    """``values`` at the pixels nearest the points ``xy`` (N, 2) = (x, y), clipped to the frame."""
+    r = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, values.shape[0] - 1)
+    c = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, values.shape[1] - 1)
+    return values[r, c]
+
 
 def adaptive_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float) -> float:
     """Threshold = mean + k * std of the residual inside ``region``."""
@@ -93,9 +106,7 @@ def signal_to_clutter(image: np.ndarray, region: np.ndarray, xy: np.ndarray, pea
     if len(xy) == 0:
         return np.zeros(0)
     _, std = local_stats(image, region, window)
-    r = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, image.shape[0] - 1)
-    c = np.clip(np.round(xy[:, 0]).astype(np.int64), 0, image.shape[1] - 1)
-    return peak / np.maximum(std[r, c], 1e-6)
+    return peak / np.maximum(sample_at(std, xy), 1e-6)
 
 
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,

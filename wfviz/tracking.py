@@ -18,7 +18,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from wfviz import kalman
-from wfviz.config import KalmanConfig, TrackingConfig
+from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 
 
 @dataclass(frozen=True)
@@ -117,7 +117,7 @@ class TrackManager:
         self._preds: list[Prediction] | None = None
         self._pred_arrays: tuple[np.ndarray, ...] = ()
         self.nearest = np.zeros(0, dtype=np.int64)  # per track: nearest detection near it (-1 none)
-        self.clutter_rule: tuple[float, int, float, bool] | None = None  # (max_static, min_known, memory, wait)
+        self.clutter_rule: ClutterConfig | None = None  # track rule of the static-clutter labels
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -172,8 +172,8 @@ class TrackManager:
         for i in np.nonzero(self.meeting & (self.history_len >= 3))[0]:
             self.x[i] = self._meeting_state(i)
         self._update_meeting()
-        half = self._gate_half_sizes()
         S = kalman.innovation_covariance(self.P, self.model)
+        half = self._gate_half_sizes(S)
         self._S_inv = np.linalg.inv(S)
         xy = self.x[:, :2].copy()
         trace = np.trace(self.P, axis1=1, axis2=2)
@@ -184,9 +184,8 @@ class TrackManager:
         self._pred_arrays = (xy, half, self.confirmed.copy(), self.meeting.copy())
         return preds
 
-    def _gate_half_sizes(self) -> np.ndarray:
+    def _gate_half_sizes(self, S: np.ndarray) -> np.ndarray:
         """Gate half sizes (N, 2): gate_sigma * sqrt(S_ii), clipped to [gate_min, gate_max]."""
-        S = kalman.innovation_covariance(self.P, self.model)
         return np.clip(self.kcfg.gate_sigma * np.sqrt(S[:, [0, 1], [0, 1]]),
                        self.kcfg.gate_min, self.kcfg.gate_max)
 
@@ -198,7 +197,7 @@ class TrackManager:
             diff = pos[:, None, :] - pos[None, :, :]
             near = np.hypot(diff[..., 0], diff[..., 1]) < self.tcfg.safety_distance
             if self.tcfg.meeting_overlap:  # gates that overlap may share one merged blob
-                half = self._gate_half_sizes()[conf]
+                half = self._gate_half_sizes(kalman.innovation_covariance(self.P[conf], self.model))
                 near &= (np.abs(diff) <= half[:, None, :] + half[None, :, :]).all(axis=2)
             np.fill_diagonal(near, False)
             close[conf] = near.any(axis=1)
@@ -293,9 +292,10 @@ class TrackManager:
         confirmed at ``confirm_hits`` hits when its mean significance also reaches
         ``confirm_significance`` (0 = hits only, as in the paper). ``clutter`` /
         ``birth_clutter``: static-clutter labels (:mod:`wfviz.clutter`; 1 static, 0 not, NaN
-        undecided) under ``clutter_rule`` = (max_static, min_known, memory): a track needs
-        ``min_known`` decided labels with a running mean ≤ ``max_static`` to be confirmed, and
-        a confirmed track above it is deleted. Returns the frame's events (including meeting
+        undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
+        ``min_known`` decided labels with a running mean ≤ ``max_static`` to be confirmed
+        (unless ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed
+        track above it is deleted. Returns the frame's events (including meeting
         events from :meth:`predict`).
         """
         scores = scores or {}
@@ -336,16 +336,16 @@ class TrackManager:
         delete = missed & (self.misses >= tc.max_misses)
         static = np.zeros(n, dtype=bool)
         if clutter is not None and self.clutter_rule is not None:
-            max_static, min_known, _, wait = self.clutter_rule
-            judged = self.clutter_known >= min_known
-            static = judged & (self.clutter > max_static)
-            confirm &= ~static & (judged | (not wait))
+            rule = self.clutter_rule
+            judged = self.clutter_known >= rule.min_known
+            static = judged & (self.clutter > rule.max_static)
+            confirm &= ~static & (judged | (not rule.wait))
             static &= self.confirmed & ~delete
             delete |= static
         for i in np.nonzero(confirm | delete)[0].tolist():
             if static[i]:
                 self._event("deleted", i, f"deleted as static clutter (fixed in the scene among "
-                                          f"other detections in {self.clutter[i]:.0%} of recent hits)")
+                                          f"many detections: running mean {self.clutter[i]:.2f})")
             elif confirm[i]:
                 self.confirmed[i] = True
                 why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
@@ -367,7 +367,7 @@ class TrackManager:
         ok = ~np.isnan(labels)
         rows, labels = rows[ok], labels[ok]
         if rows.size and self.clutter_rule is not None:
-            a = self.clutter_rule[2]
+            a = self.clutter_rule.memory
             first = self.clutter_known[rows] == 0
             self.clutter[rows] = np.where(first, labels, (1 - a) * self.clutter[rows] + a * labels)
             self.clutter_known[rows] += 1

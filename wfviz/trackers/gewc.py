@@ -65,8 +65,7 @@ class GEWCTracker:
         self.imaging = ImagingMask(c.circle)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
         if self.clutter is not None:
-            self.manager.clutter_rule = (c.clutter.max_static, c.clutter.min_known, c.clutter.memory,
-                                         c.clutter.wait)
+            self.manager.clutter_rule = c.clutter
         self._offset = np.zeros(2)  # accumulated camera shift (scene -> image)
         self._region: np.ndarray | None = None
         self._zones: list[np.ndarray] | None = None
@@ -106,7 +105,8 @@ class GEWCTracker:
             shift = (dx, dy)
             self._offset += shift
             self.manager.shift(dx, dy)
-        labels = None if self.clutter is None else self._clutter_labels(dets)
+        labels = None if self.clutter is None else self.clutter.update(
+            dets.xy, self._offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         lap("associate")
@@ -143,19 +143,6 @@ class GEWCTracker:
                if d >= 0 and mgr.meeting[i]}
         out.update({i: float(labels[m.detection]) for i, m in meas.items()})
         return out
-
-    def _clutter_labels(self, dets: Detections) -> np.ndarray:
-        """Static-clutter labels (:mod:`wfviz.clutter`); ``clutter.bright`` spots are never clutter."""
-        labels = self.clutter.update(dets.xy, self._offset)
-        bright = self.config.clutter.bright
-        if bright > 0 and len(dets):
-            thr = dets.threshold
-            if dets.threshold_map is not None:
-                r = np.clip(np.rint(dets.xy[:, 1]).astype(np.int64), 0, dets.threshold_map.shape[0] - 1)
-                c = np.clip(np.rint(dets.xy[:, 0]).astype(np.int64), 0, dets.threshold_map.shape[1] - 1)
-                thr = dets.threshold_map[r, c]
-            labels[dets.peak >= bright * np.maximum(thr, 1e-12)] = 0.0
-        return labels
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray) -> dict[int, Measurement]:
