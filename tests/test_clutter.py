@@ -10,6 +10,22 @@ from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 from wfviz.tracking import TrackManager
 
 GROUND = np.array([[20.0 + 15 * i, 30.0 + 11 * (i % 4)] for i in range(12)])  # 12 fixed spots
+SHAPE = (160, 240)
+
+
+def _render(xy: np.ndarray, amplitude: float = 10.0) -> np.ndarray:
+    """A background-suppressed frame: a Gaussian spot (sigma 0.8 px) at each position."""
+    yy, xx = np.mgrid[0:SHAPE[0], 0:SHAPE[1]].astype(np.float32)
+    img = np.zeros(SHAPE, np.float32)
+    for x, y in xy:
+        img += amplitude * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / (2 * 0.8 ** 2))
+    return img
+
+
+def _label(sc: StaticClutter, xy: np.ndarray, off, contrast=None) -> np.ndarray:
+    img = _render(xy)
+    peak = img[np.rint(xy[:, 1]).astype(int), np.rint(xy[:, 0]).astype(int)]
+    return sc.update(xy, peak, img, off, contrast)
 
 
 def _frames(n: int, pan: tuple[float, float] = (0.7, 0.4), target_speed: float = 1.0):
@@ -21,33 +37,74 @@ def _frames(n: int, pan: tuple[float, float] = (0.7, 0.4), target_speed: float =
 
 
 def test_static_crowded_spots_are_clutter_and_the_moving_target_is_not():
-    sc = StaticClutter(ClutterConfig(enabled=True, lag=10))
-    labels = [sc.update(xy, off) for xy, off in _frames(20)]
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=0))
+    labels = [_label(sc, xy, off) for xy, off in _frames(20)]
     assert np.isnan(labels[0]).all()               # crowded, not decidable yet
-    for lab in labels[12:]:
+    assert np.isnan(labels[9]).all()
+    for lab in labels[11:]:
         assert (lab[:12] == 1).all() and lab[12] == 0  # the target moved 10 px in the scene
 
 
+def test_a_fast_pan_decides_before_lag_frames():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3, min_shift=3.0))
+    labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(1.2, 0.0))]
+    assert np.isnan(labels[2]).all()  # 2.4 px of pan: a short lag cannot decide yet
+    assert (labels[3][:12] == 1).all() and labels[3][12] == 0  # 3.6 px after 3 frames
+
+
+def test_a_still_camera_waits_for_the_full_lag():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3))
+    labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(0.0, 0.0))]
+    assert np.isnan(labels[9]).all()
+    assert (labels[10][:12] == 1).all() and labels[10][12] == 0
+
+
+def test_a_spot_that_was_outside_the_frame_is_undecided_not_moved():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=0))
+    for k in range(14):  # the camera pans right: the scene moves left, new ground enters at the right
+        off = np.array([-2.0 * k, 0.0])
+        new = np.array([[SHAPE[1] - 5.0, 80.0]])  # always just inside the right edge: new ground
+        lab = _label(sc, np.vstack([GROUND[:11] + off + [40, 0], new]), off)
+    assert np.isnan(lab[-1])  # 20 px outside the frame 10 frames ago
+
+
 def test_without_the_camera_shift_the_panned_ground_is_not_static():
-    sc = StaticClutter(ClutterConfig(enabled=True, lag=10))
-    labels = [sc.update(xy, (0.0, 0.0)) for xy, _ in _frames(20)]
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=0))
+    labels = [_label(sc, xy, (0.0, 0.0)) for xy, _ in _frames(20)]
     assert (labels[-1] == 0).all()  # 8 px of pan in 10 frames: nothing stays put in the image
+
+
+def test_a_spot_that_brightens_well_beyond_its_past_is_not_static():
+    cfg = ClutterConfig(enabled=True, lag=4, min_lag=0, persist=0.35)
+    sc = StaticClutter(cfg)
+    for k in range(8):
+        img = _render(GROUND)
+        img[30, 20] = 10.0 if k < 6 else 40.0  # the first spot flares 4x in frame 6
+        peak = img[np.rint(GROUND[:, 1]).astype(int), np.rint(GROUND[:, 0]).astype(int)]
+        lab = sc.update(GROUND, peak, img, (0.0, 0.0))
+    assert lab[0] == 0 and (lab[1:] == 1).all()
 
 
 def test_a_hovering_target_alone_is_never_clutter():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=10))
     for k in range(20):
-        lab = sc.update(np.array([[50.0, 40.0], [90.0, 20.0 + 2 * k]]), (0.0, 0.0))
+        lab = _label(sc, np.array([[50.0, 40.0], [90.0, 20.0 + 2 * k]]), (0.0, 0.0))
         assert (lab == 0).all()  # 2 detections: not crowded (min_neighbours 10)
 
 
 def test_neighbourhood_radius_limits_the_crowd():
-    cfg = ClutterConfig(enabled=True, lag=3, neighbourhood=10.0, min_neighbours=2)
+    cfg = ClutterConfig(enabled=True, lag=3, min_lag=0, neighbourhood=10.0, min_neighbours=2)
     sc = StaticClutter(cfg)
     pts = np.array([[10.0, 10], [14, 10], [10, 14], [80, 80]])  # a cluster of 3 and a lone spot
     for _ in range(6):
-        lab = sc.update(pts, (0.0, 0.0))
+        lab = _label(sc, pts, (0.0, 0.0))
     assert lab.tolist() == [1.0, 1.0, 1.0, 0.0]
+
+
+def test_min_lag_above_lag_is_a_config_error():
+    from wfviz.config import ConfigError, GEWCConfig, config_from_dict
+    with pytest.raises(ConfigError, match="clutter.min_lag"):
+        config_from_dict({"clutter": {"lag": 5, "min_lag": 8}}, GEWCConfig)
 
 
 def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] | None = None):
@@ -90,6 +147,24 @@ def test_track_with_clean_labels_is_confirmed_as_usual():
     assert [e.frame for e in events if e.kind == "confirmed"] == [5]
 
 
+def test_a_confirmed_track_survives_a_short_static_spell_but_not_a_long_one():
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, delete_static=0.8, memory=0.1)
+    xy = [np.array([[40.0, 40.0]])] * 40
+    labels = [np.array([0.0])] * 10 + [np.array([1.0])] * 30
+    events = _run(mgr, xy[:13], labels[:13])
+    assert [e.frame for e in events if e.kind == "confirmed"] == [5]
+    assert len(mgr) == 1 and mgr.states()[0].confirmed  # mean 1 - 0.9**3 = 0.27 after three static hits
+    for f in range(13, 40):
+        preds = mgr.predict(f)
+        pairs = mgr.associate(preds, xy[f])
+        events += mgr.update({i: tuple(xy[f][d]) for i, d in pairs.items()}, np.zeros((0, 2)),
+                             clutter={i: 1.0 for i in pairs})
+    deleted = [e for e in events if e.kind == "deleted"]
+    # plain mean over 10 labels (0), then 1 - 0.9**n > 0.8 from the 16th static label on
+    assert [e.frame for e in deleted] == [25] and "static clutter" in deleted[0].message
+
+
 def _pair_frames(n: int, gap: float) -> list[np.ndarray]:
     return [np.array([[50.0, 50.0], [50.0 + gap, 50.0]]) for _ in range(n)]
 
@@ -120,5 +195,5 @@ def test_a_spot_far_above_its_threshold_is_never_clutter():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=10))
     contrast = np.full(len(GROUND) + 1, 1.5)
     contrast[0] = 6.0  # one ground spot 6x its threshold (bright = 4)
-    labels = [sc.update(xy, off, contrast) for xy, off in _frames(20)]
+    labels = [_label(sc, xy, off, contrast) for xy, off in _frames(20)]
     assert labels[-1][0] == 0 and (labels[-1][1:12] == 1).all()

@@ -6,13 +6,20 @@ they keep their place in the scene (camera motion removed) and they come in crow
 moves relative to the ground, and a lone point in clean sky is a target even when it hovers
 (a hovering target amid ground clutter is lost: there is nothing to tell it from the ground).
 
-:class:`StaticClutter` labels each detection of a frame (scene coordinates come from the
-accumulated camera shift, see :class:`wfviz.registration.MotionEstimator`):
+:class:`StaticClutter` labels each detection of a frame. Its scene position (from the
+accumulated camera shift, see :class:`wfviz.registration.MotionEstimator`) is looked up in the
+background-suppressed images of ``lag`` (±2) frames earlier: a spot of the ground was there
+already, about as bright (at least ``persist`` times the detection's peak, in one of the four
+pixels around the position), a moving target was not. Comparing images rather than detections
+makes the test immune to spots that flicker across the detection threshold. Labels:
 
 - ``0``: not clutter-like (moved relative to the scene, alone in its neighbourhood, or
   ``bright`` times its threshold or more);
 - ``1``: static and crowded;
-- ``NaN``: crowded but not yet decidable (fewer than ``lag`` frames seen).
+- ``NaN``: crowded but not decidable (fewer than ``lag`` frames seen, or the point was outside
+  the frame then). With ``min_lag`` > 0, an undecidable point is tried at shorter lags down to
+  ``min_lag``, as long as the camera moved at least ``min_shift`` px meanwhile (so that a
+  point fixed in the image, as a followed target is, and a point fixed in the scene differ).
 
 The track manager averages these labels over each track's hits
 (:meth:`wfviz.tracking.TrackManager.update`).
@@ -20,6 +27,7 @@ The track manager averages these labels over each track's hits
 
 from __future__ import annotations
 
+import math
 from collections import deque
 
 import numpy as np
@@ -27,7 +35,7 @@ from scipy.spatial import cKDTree
 
 from wfviz.config import ClutterConfig
 
-_SPREAD = 2  # frames either side of the lag that are searched for the earlier detection
+_SPREAD = 2  # frames either side of the lag that are searched for the earlier spot
 
 
 class StaticClutter:
@@ -35,36 +43,66 @@ class StaticClutter:
 
     def __init__(self, config: ClutterConfig) -> None:
         self.config = config
-        self._history: deque[np.ndarray] = deque(maxlen=config.lag + _SPREAD + 1)
+        # per frame: the background-suppressed image and the accumulated camera offset
+        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=config.lag + _SPREAD + 1)
 
-    def update(self, xy: np.ndarray, offset: tuple[float, float],
-               contrast: np.ndarray | None = None) -> np.ndarray:
-        """Labels of this frame's detections ``xy`` (N, 2); ``offset``: accumulated camera
-        shift; ``contrast``: each detection's peak / the threshold it passed (None: not used)."""
+    def update(self, xy: np.ndarray, peak: np.ndarray, suppressed: np.ndarray,
+               offset: tuple[float, float], contrast: np.ndarray | None = None) -> np.ndarray:
+        """Labels of this frame's detections ``xy`` (N, 2) with residual ``peak`` (N,) in
+        the background-suppressed image ``suppressed``; ``offset``: accumulated camera shift;
+        ``contrast``: each detection's peak / the threshold it passed (None: not used)."""
         c = self.config
-        scene = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - np.asarray(offset, dtype=np.float64)
+        off = np.asarray(offset, dtype=np.float64)
+        xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         history = self._history
-        n = len(scene)
+        n = len(xy)
         labels = np.zeros(n)
         if n:
             if c.neighbourhood > 0:
-                others = cKDTree(scene).query_ball_point(scene, c.neighbourhood, return_length=True) - 1
+                others = cKDTree(xy).query_ball_point(xy, c.neighbourhood, return_length=True) - 1
                 crowded = others >= c.min_neighbours
             else:  # the whole frame
                 crowded = np.full(n, n - 1 >= c.min_neighbours)
-            if crowded.any():
-                if len(history) <= c.lag:
-                    labels[crowded] = np.nan
-                else:
-                    back = len(history) - c.lag  # index of the frame `lag` frames ago
-                    earlier = np.concatenate([history[j] for j in range(
-                        max(back - _SPREAD, 0), min(back + _SPREAD + 1, len(history)))])
-                    static = np.zeros(n, dtype=bool)
-                    if len(earlier):
-                        dist, _ = cKDTree(earlier).query(scene, distance_upper_bound=c.radius * (1 + 1e-9))
-                        static = np.isfinite(dist)
-                    labels[crowded] = static[crowded]
+            labels[crowded] = np.nan
+            todo = crowded.copy()
+            scene = xy - off
+            floor = c.persist * np.asarray(peak, dtype=np.float64).reshape(-1)
+            low = c.min_lag if c.min_lag > 0 else c.lag
+            for k in range(c.lag, low - 1, -1):
+                if not todo.any() or k > len(history):
+                    continue
+                if k < c.lag and math.hypot(*(off - history[-k][1])) < c.min_shift:
+                    continue  # camera still: a short lag cannot tell scene from image motion
+                spread = _SPREAD if k == c.lag else k // 5
+                seen = np.zeros(n, dtype=bool)    # inside the lag frame then
+                static = np.zeros(n, dtype=bool)  # as bright a spot there in a frame around it
+                for j in range(k - spread, k + spread + 1):
+                    if not 1 <= j <= len(history):
+                        continue
+                    image, then = history[-j]
+                    value = _corner_max(image, scene[todo] + then)
+                    static[todo] |= value >= floor[todo]
+                    if j == k:
+                        seen[todo] = np.isfinite(value)
+                here = todo & seen
+                labels[here] = static[here]
+                todo &= ~here
             if contrast is not None and c.bright > 0:
                 labels[np.asarray(contrast) >= c.bright] = 0.0
-        history.append(scene)
+        history.append((np.asarray(suppressed, dtype=np.float32).copy(), off.copy()))
         return labels
+
+
+def _corner_max(image: np.ndarray, q: np.ndarray) -> np.ndarray:
+    """Largest of the four pixels around each position ``q`` (N, 2; x, y), -inf outside: the
+    spot may sit up to a pixel off in the direction the registration rounding left it."""
+    h, w = image.shape
+    out = np.full(len(q), -np.inf)
+    inside = (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
+    if inside.any():
+        x0 = np.minimum(np.floor(q[inside, 0]).astype(np.int64), max(w - 2, 0))
+        y0 = np.minimum(np.floor(q[inside, 1]).astype(np.int64), max(h - 2, 0))
+        x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
+        out[inside] = np.maximum(np.maximum(image[y0, x0], image[y0, x1]),
+                                 np.maximum(image[y1, x0], image[y1, x1]))
+    return out

@@ -129,24 +129,31 @@ class ClutterConfig:
     """Static clutter: points fixed in the scene amid many detections (textured ground).
 
     Not in the paper (docs/pipeline.md §9). A detection is *static* when, in scene coordinates
-    (camera motion removed), a detection lay within ``radius`` px of it ``lag`` (±2) frames
-    earlier, and *crowded* when at least ``min_neighbours`` other detections lie within
-    ``neighbourhood`` px (0: anywhere in the frame). Detections ``bright`` times above the
-    threshold or more are never clutter. A track whose crowded hits are mostly static (running
-    mean with weight ``memory`` above ``max_static`` after ``min_known`` decided hits) is not
-    confirmed, and a confirmed one is deleted. ``wait``: hold confirmation until decided.
+    (camera motion removed), the background-suppressed image of ``lag`` (±2) frames earlier
+    held at least ``persist`` times its peak there; where that is not decidable (clip start,
+    point outside the frame then), shorter lags down to ``min_lag`` are tried when the camera
+    moved ``min_shift`` px meanwhile. It is *crowded* when at least ``min_neighbours`` other
+    detections lie within ``neighbourhood`` px (0: anywhere in the frame). Detections ``bright``
+    times above the threshold or more are never clutter. A track whose crowded hits are mostly
+    static (mean above ``max_static`` after ``min_known`` decided hits: a plain mean, then a
+    running one with weight ``memory``) is not confirmed, and a confirmed one is deleted when its
+    mean exceeds ``delete_static``.
+    ``wait``: hold confirmation until decided.
     """
 
     enabled: bool = False
     lag: int = field(default=10, metadata=_range(2, 100))
-    radius: float = field(default=1.5, metadata=_range(0.1, None))
+    min_lag: int = field(default=3, metadata=_range(0, 100))
+    min_shift: float = field(default=3.0, metadata=_range(0.0, None))
+    persist: float = field(default=0.35, metadata=_range(0.0, None))
     neighbourhood: float = field(default=0.0, metadata=_range(0.0, None))
     min_neighbours: int = field(default=10, metadata=_range(1, None))
     bright: float = field(default=4.0, metadata=_range(0.0, None))
     max_static: float = field(default=0.5, metadata=_range(0.0, 1.0))
+    delete_static: float = field(default=0.8, metadata=_range(0.0, 1.0))
     min_known: int = field(default=2, metadata=_range(1, None))
-    memory: float = field(default=0.25, metadata=_range(0.01, 1.0))
-    wait: bool = False
+    memory: float = field(default=0.1, metadata=_range(0.01, 1.0))
+    wait: bool = True
 
 
 @dataclass(frozen=True)
@@ -168,6 +175,12 @@ class GEWCConfig:
         k = self.kalman
         if k.gate_min > k.gate_max:
             raise ConfigError(f"kalman.gate_min ({k.gate_min}) must not exceed kalman.gate_max ({k.gate_max})")
+        c = self.clutter
+        if c.min_lag > c.lag:
+            raise ConfigError(f"clutter.min_lag ({c.min_lag}) must not exceed clutter.lag ({c.lag})")
+        if c.delete_static < c.max_static:
+            raise ConfigError(f"clutter.delete_static ({c.delete_static}) must not be below "
+                              f"clutter.max_static ({c.max_static})")
 
 
 @dataclass(frozen=True)

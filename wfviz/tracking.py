@@ -293,9 +293,9 @@ class TrackManager:
         ``confirm_significance`` (0 = hits only, as in the paper). ``clutter`` /
         ``birth_clutter``: static-clutter labels (:mod:`wfviz.clutter`; 1 static, 0 not, NaN
         undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
-        ``min_known`` decided labels with a running mean ≤ ``max_static`` to be confirmed
-        (unless ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed
-        track above it is deleted. Returns the frame's events (including meeting
+        ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
+        ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
+        above ``delete_static`` is deleted. Returns the frame's events (including meeting
         events from :meth:`predict`).
         """
         scores = scores or {}
@@ -340,7 +340,7 @@ class TrackManager:
             judged = self.clutter_known >= rule.min_known
             static = judged & (self.clutter > rule.max_static)
             confirm &= ~static & (judged | (not rule.wait))
-            static &= self.confirmed & ~delete
+            static &= self.confirmed & ~delete & (self.clutter > rule.delete_static)
             delete |= static
         for i in np.nonzero(confirm | delete)[0].tolist():
             if static[i]:
@@ -363,14 +363,14 @@ class TrackManager:
         return self._events
 
     def _add_clutter(self, rows: np.ndarray, labels: np.ndarray) -> None:
-        """Fold decided static-clutter labels into the tracks' running means."""
+        """Fold decided static-clutter labels into the tracks' means: a plain mean over the first
+        1/``memory`` labels, then a running one with weight ``memory``."""
         ok = ~np.isnan(labels)
         rows, labels = rows[ok], labels[ok]
         if rows.size and self.clutter_rule is not None:
-            a = self.clutter_rule.memory
-            first = self.clutter_known[rows] == 0
-            self.clutter[rows] = np.where(first, labels, (1 - a) * self.clutter[rows] + a * labels)
             self.clutter_known[rows] += 1
+            a = np.maximum(self.clutter_rule.memory, 1.0 / self.clutter_known[rows])
+            self.clutter[rows] = (1 - a) * self.clutter[rows] + a * labels
 
     def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None,
                birth_clutter: np.ndarray | None = None) -> None:
