@@ -41,15 +41,15 @@ def test_static_crowded_spots_are_clutter_and_the_moving_target_is_not():
     labels = [_label(sc, xy, off) for xy, off in _frames(20)]
     assert np.isnan(labels[0]).all()               # crowded, not decidable yet
     assert np.isnan(labels[9]).all()
-    for lab in labels[11:]:
+    for lab in labels[10:]:
         assert (lab[:12] == 1).all() and lab[12] == 0  # the target moved 10 px in the scene
 
 
 def test_a_fast_pan_decides_before_lag_frames():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3, min_shift=3.0))
-    labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(1.2, 0.0))]
-    assert np.isnan(labels[2]).all()  # 2.4 px of pan: a short lag cannot decide yet
-    assert (labels[3][:12] == 1).all() and labels[3][12] == 0  # 3.6 px after 3 frames
+    labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(0.9, 0.0))]
+    assert np.isnan(labels[3]).all()  # 2.7 px of pan in 3 frames: a short lag cannot decide yet
+    assert (labels[4][:12] == 1).all() and labels[4][12] == 0  # 3.6 px after 4 frames
 
 
 def test_a_still_camera_waits_for_the_full_lag():
@@ -65,7 +65,7 @@ def test_a_spot_that_was_outside_the_frame_is_undecided_not_moved():
         off = np.array([-2.0 * k, 0.0])
         new = np.array([[SHAPE[1] - 5.0, 80.0]])  # always just inside the right edge: new ground
         lab = _label(sc, np.vstack([GROUND[:11] + off + [40, 0], new]), off)
-    assert np.isnan(lab[-1])  # 20 px outside the frame 10 frames ago
+    assert np.isnan(lab[-1])  # 16 px outside the frame (x = 255, last column 239) 10 frames ago
 
 
 def test_without_the_camera_shift_the_panned_ground_is_not_static():
@@ -101,10 +101,34 @@ def test_neighbourhood_radius_limits_the_crowd():
     assert lab.tolist() == [1.0, 1.0, 1.0, 0.0]
 
 
-def test_min_lag_above_lag_is_a_config_error():
+def test_the_four_pixels_around_the_position_are_looked_up():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=2, min_lag=0, min_neighbours=1))
+    earlier = np.zeros(SHAPE, np.float32)
+    earlier[30, 21] = 10.0  # a one-pixel spot at x = 21
+    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
+    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
+    xy = np.array([[20.4, 30.0], [19.4, 30.0]])  # rounds to 20 (dark); its corners reach 21
+    lab = sc.update(xy, np.array([10.0, 10.0]), np.zeros(SHAPE, np.float32), (0.0, 0.0))
+    assert lab.tolist() == [1.0, 0.0]
+
+
+def test_nan_pixels_in_the_earlier_image_do_not_hide_the_spot():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=1, min_lag=0, min_neighbours=1))
+    earlier = np.zeros(SHAPE, np.float32)
+    earlier[30, 20], earlier[30, 21] = np.nan, 10.0
+    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
+    lab = sc.update(np.array([[20.5, 30.0], [60.0, 60.0]]), np.array([10.0, 10.0]),
+                    np.zeros(SHAPE, np.float32), (0.0, 0.0))
+    assert lab.tolist() == [1.0, 0.0]
+
+
+@pytest.mark.parametrize("section,message", [({"lag": 5, "min_lag": 8}, "clutter.min_lag"),
+                                             ({"max_static": 0.6, "delete_static": 0.5},
+                                              "clutter.delete_static")])
+def test_inconsistent_clutter_settings_are_a_config_error(section, message):
     from wfviz.config import ConfigError, GEWCConfig, config_from_dict
-    with pytest.raises(ConfigError, match="clutter.min_lag"):
-        config_from_dict({"clutter": {"lag": 5, "min_lag": 8}}, GEWCConfig)
+    with pytest.raises(ConfigError, match=message):
+        config_from_dict({"clutter": section}, GEWCConfig)
 
 
 def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] | None = None):
@@ -144,6 +168,16 @@ def test_track_with_clean_labels_is_confirmed_as_usual():
     mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, min_known=2, memory=0.25, wait=True)
     xy = [np.array([[40.0 + k, 40.0]]) for k in range(10)]
     events = _run(mgr, xy, [np.array([0.0])] * 10)
+    assert [e.frame for e in events if e.kind == "confirmed"] == [5]
+
+
+def test_the_first_labels_are_averaged_plainly():
+    # labels 1, 0, 0, 0, 0, 0: plain mean 1/6 at the 6th hit (confirmed); a running mean with
+    # weight 0.1 started at the first label would still be at 0.9**5 = 0.59 (held back)
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, memory=0.1)
+    xy = [np.array([[40.0 + k, 40.0]]) for k in range(8)]
+    events = _run(mgr, xy, [np.array([1.0])] + [np.array([0.0])] * 7)
     assert [e.frame for e in events if e.kind == "confirmed"] == [5]
 
 

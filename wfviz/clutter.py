@@ -17,9 +17,10 @@ makes the test immune to spots that flicker across the detection threshold. Labe
   ``bright`` times its threshold or more);
 - ``1``: static and crowded;
 - ``NaN``: crowded but not decidable (fewer than ``lag`` frames seen, or the point was outside
-  the frame then). With ``min_lag`` > 0, an undecidable point is tried at shorter lags down to
-  ``min_lag``, as long as the camera moved at least ``min_shift`` px meanwhile (so that a
-  point fixed in the image, as a followed target is, and a point fixed in the scene differ).
+  the frame then). With ``min_lag`` > 0 (0: the full lag only), an undecidable point is tried
+  at shorter lags k down to ``min_lag`` (searching ±k//5 frames around each), as long as the
+  camera moved at least ``min_shift`` px meanwhile (so that a point fixed in the image, as a
+  followed target is, and a point fixed in the scene differ).
 
 The track manager averages these labels over each track's hits
 (:meth:`wfviz.tracking.TrackManager.update`).
@@ -44,7 +45,7 @@ class StaticClutter:
     def __init__(self, config: ClutterConfig) -> None:
         self.config = config
         # per frame: the background-suppressed image and the accumulated camera offset
-        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=config.lag + _SPREAD + 1)
+        self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=config.lag + _SPREAD)
 
     def update(self, xy: np.ndarray, peak: np.ndarray, suppressed: np.ndarray,
                offset: tuple[float, float], contrast: np.ndarray | None = None) -> np.ndarray:
@@ -80,10 +81,10 @@ class StaticClutter:
                     if not 1 <= j <= len(history):
                         continue
                     image, then = history[-j]
-                    value = _corner_max(image, scene[todo] + then)
-                    static[todo] |= value >= floor[todo]
+                    value, inside = _corner_max(image, scene[todo] + then)
+                    static[todo] |= inside & (value >= floor[todo])
                     if j == k:
-                        seen[todo] = np.isfinite(value)
+                        seen[todo] = inside
                 here = todo & seen
                 labels[here] = static[here]
                 todo &= ~here
@@ -93,9 +94,10 @@ class StaticClutter:
         return labels
 
 
-def _corner_max(image: np.ndarray, q: np.ndarray) -> np.ndarray:
-    """Largest of the four pixels around each position ``q`` (N, 2; x, y), -inf outside: the
-    spot may sit up to a pixel off in the direction the registration rounding left it."""
+def _corner_max(image: np.ndarray, q: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Largest of the four pixels around each position ``q`` (N, 2; x, y; NaN pixels ignored)
+    and whether the position lies inside the image: the spot may sit up to a pixel off in the
+    direction the registration's rounding left it."""
     h, w = image.shape
     out = np.full(len(q), -np.inf)
     inside = (q[:, 0] >= 0) & (q[:, 0] <= w - 1) & (q[:, 1] >= 0) & (q[:, 1] <= h - 1)
@@ -103,6 +105,6 @@ def _corner_max(image: np.ndarray, q: np.ndarray) -> np.ndarray:
         x0 = np.minimum(np.floor(q[inside, 0]).astype(np.int64), max(w - 2, 0))
         y0 = np.minimum(np.floor(q[inside, 1]).astype(np.int64), max(h - 2, 0))
         x1, y1 = np.minimum(x0 + 1, w - 1), np.minimum(y0 + 1, h - 1)
-        out[inside] = np.maximum(np.maximum(image[y0, x0], image[y0, x1]),
-                                 np.maximum(image[y1, x0], image[y1, x1]))
-    return out
+        out[inside] = np.fmax(np.fmax(image[y0, x0], image[y0, x1]),
+                              np.fmax(image[y1, x0], image[y1, x1]))
+    return out, inside

@@ -131,12 +131,12 @@ class ClutterConfig:
     Not in the paper (docs/pipeline.md §9). A detection is *static* when, in scene coordinates
     (camera motion removed), the background-suppressed image of ``lag`` (±2) frames earlier
     held at least ``persist`` times its peak there; where that is not decidable (clip start,
-    point outside the frame then), shorter lags down to ``min_lag`` are tried when the camera
-    moved ``min_shift`` px meanwhile. It is *crowded* when at least ``min_neighbours`` other
+    point outside the frame then), shorter lags k down to ``min_lag`` (0: none; ±k//5 frames) are
+    tried when the camera moved ``min_shift`` px meanwhile. It is *crowded* when at least ``min_neighbours`` other
     detections lie within ``neighbourhood`` px (0: anywhere in the frame). Detections ``bright``
     times above the threshold or more are never clutter. A track whose crowded hits are mostly
-    static (mean above ``max_static`` after ``min_known`` decided hits: a plain mean, then a
-    running one with weight ``memory``) is not confirmed, and a confirmed one is deleted when its
+    static (mean above ``max_static`` after ``min_known`` decided hits: a plain mean while that
+    weighs more than ``memory``, then a running one with weight ``memory``) is not confirmed, and a confirmed one is deleted when its
     mean exceeds ``delete_static``.
     ``wait``: hold confirmation until decided.
     """

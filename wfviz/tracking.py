@@ -89,7 +89,7 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         velocities=np.zeros((n, 3, 2)),         # filtered (vx, vy) of the last updates
         velocities_len=np.zeros(n, dtype=np.int64),
         innovation=np.full((n, 2), np.nan),     # NaN: not updated this frame
-        clutter=np.zeros(n),                    # running mean of the hits' static-clutter labels
+        clutter=np.zeros(n),                    # mean of the hits' static-clutter labels (_add_clutter)
         clutter_known=np.zeros(n, dtype=np.int64),  # hits with a decided label
         _S_inv=np.zeros((n, 2, 2)),             # inverse innovation covariances (predict)
     )
@@ -345,7 +345,7 @@ class TrackManager:
         for i in np.nonzero(confirm | delete)[0].tolist():
             if static[i]:
                 self._event("deleted", i, f"deleted as static clutter (fixed in the scene among "
-                                          f"many detections: running mean {self.clutter[i]:.2f})")
+                                          f"many detections: mean static label {self.clutter[i]:.2f})")
             elif confirm[i]:
                 self.confirmed[i] = True
                 why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
@@ -363,8 +363,8 @@ class TrackManager:
         return self._events
 
     def _add_clutter(self, rows: np.ndarray, labels: np.ndarray) -> None:
-        """Fold decided static-clutter labels into the tracks' means: a plain mean over the first
-        1/``memory`` labels, then a running one with weight ``memory``."""
+        """Fold decided static-clutter labels into the tracks' means: a plain mean while 1/n (n
+        labels so far) exceeds ``memory``, then a running one with weight ``memory``."""
         ok = ~np.isnan(labels)
         rows, labels = rows[ok], labels[ok]
         if rows.size and self.clutter_rule is not None:
