@@ -19,7 +19,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load thei
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -27,29 +26,18 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import FusionConfig, load_config  # noqa: E402
-from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.config import FusionConfig  # noqa: E402
 from wfviz.trackers.fusion import FusionTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_timing import time_steps  # noqa: E402
+from step_timing import bench_args, bench_frames, time_steps  # noqa: E402
 
 STAGES = ["defects", "mask", "horizon", "windows", "suppress", "detect", "associate", "kalman", "total"]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="uniform-50hz")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
-    ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--config", default=None, help="fusion TOML config (default: defaults)")
-    args = ap.parse_args()
-
-    cv2.setNumThreads(1)
-    config = load_config(args.config, FusionConfig)
-    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
-    frames = list(clip.frames())
+    args = bench_args(__doc__, "fusion", "uniform-50hz", 7)
+    config, frames = bench_frames(args, FusionConfig)
     h, w = frames[0].image.shape
     t = time_steps(lambda: FusionTracker(config), frames, args.runs, STAGES, warmup=20,
                    extra=lambda r: r.global_detection)

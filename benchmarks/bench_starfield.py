@@ -19,7 +19,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load thei
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 import time  # noqa: E402
@@ -28,14 +27,13 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import StarfieldConfig, load_config  # noqa: E402
+from wfviz.config import StarfieldConfig  # noqa: E402
 from wfviz.frames import Frame  # noqa: E402
 from wfviz.starfield import segmentation as seg  # noqa: E402
-from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_timing import time_steps  # noqa: E402
+from step_timing import bench_args, bench_frames, time_steps  # noqa: E402
 
 STAGES = ["segment", "register", "candidates", "chains", "resegment", "total"]
 PAPER_MS = 768.7  # the paper's mean per 1024x1024 frame (MATLAB-era, AMD dual core 2.3 GHz)
@@ -67,18 +65,8 @@ def segmentation_steps(frames: list[Frame], config: StarfieldConfig, runs: int) 
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="starfield")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
-    ap.add_argument("--runs", type=int, default=5)
-    ap.add_argument("--config", default=None, help="starfield TOML config (default: defaults)")
-    args = ap.parse_args()
-
-    cv2.setNumThreads(1)
-    config = load_config(args.config, StarfieldConfig)
-    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
-    frames = list(clip.frames())
+    args = bench_args(__doc__, "starfield", "starfield", 5)
+    config, frames = bench_frames(args, StarfieldConfig)
     h, w = frames[0].image.shape
     t = time_steps(lambda: StarfieldTracker(config), frames, args.runs, STAGES, warmup=8)
     stages, wall = t.table, t.wall

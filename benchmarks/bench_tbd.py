@@ -18,7 +18,6 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load thei
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
 import platform  # noqa: E402
 import sys  # noqa: E402
 from pathlib import Path  # noqa: E402
@@ -26,30 +25,18 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import TBDConfig, load_config  # noqa: E402
-from wfviz.synth.scenarios import make_scenario  # noqa: E402
+from wfviz.config import TBDConfig  # noqa: E402
 from wfviz.trackers.tbd import STAGES, TBDTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_timing import time_steps  # noqa: E402
+from step_timing import bench_args, bench_frames, time_steps  # noqa: E402
 
 COLUMNS = list(STAGES) + ["total"]
 
 
 def main() -> None:
-    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
-    ap.add_argument("--scenario", default="lowsnr-tbd")
-    ap.add_argument("--seed", type=int, default=0)
-    ap.add_argument("--snr", type=float, default=None, help="peak SNR of every target (lowsnr-tbd: 3)")
-    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
-    ap.add_argument("--runs", type=int, default=7)
-    ap.add_argument("--config", default=None, help="tbd TOML config (default: defaults)")
-    args = ap.parse_args()
-
-    cv2.setNumThreads(1)
-    config = load_config(args.config, TBDConfig)
-    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames, snr=args.snr)
-    frames = list(clip.frames())
+    args = bench_args(__doc__, "tbd", "lowsnr-tbd", 7, snr=True)
+    config, frames = bench_frames(args, TBDConfig)
     h, w = frames[0].image.shape
     t = time_steps(lambda: TBDTracker(config), frames, args.runs, COLUMNS, warmup=5,
                    extra=lambda r: len(r.regions))

@@ -2,14 +2,41 @@
 
 from __future__ import annotations
 
+import argparse
 import time
 from collections.abc import Callable
 from dataclasses import dataclass
+from typing import Any
 
+import cv2
 import numpy as np
 
+from wfviz.config import load_config
 from wfviz.frames import Frame
+from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import Tracker
+
+
+def bench_args(doc: str, tracker: str, scenario: str, runs: int, snr: bool = False) -> argparse.Namespace:
+    """The options every tracker benchmark takes: scenario, seed, frames, runs, config (and
+    ``--snr`` where the scenario has one)."""
+    ap = argparse.ArgumentParser(description=doc.splitlines()[0])
+    ap.add_argument("--scenario", default=scenario)
+    ap.add_argument("--seed", type=int, default=0)
+    if snr:
+        ap.add_argument("--snr", type=float, default=None, help="peak SNR of every target (lowsnr-tbd: 3)")
+    ap.add_argument("--frames", type=int, default=None, help="frames (default: the whole scenario)")
+    ap.add_argument("--runs", type=int, default=runs)
+    ap.add_argument("--config", default=None, help=f"{tracker} TOML config (default: defaults)")
+    return ap.parse_args()
+
+
+def bench_frames(args: argparse.Namespace, config_type: type) -> tuple[Any, list[Frame]]:
+    """OpenCV on one thread; the config from ``--config``; the scenario's frames in memory
+    (rendering is not timed)."""
+    cv2.setNumThreads(1)
+    clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames, snr=getattr(args, "snr", None))
+    return load_config(args.config, config_type), list(clip.frames())
 
 
 @dataclass(frozen=True)

@@ -110,3 +110,16 @@ def test_crossing_keeps_both_identities(tcfg):
     assert len(set(ids_a)) == 1 and len(set(ids_b)) == 1 and ids_a[0] != ids_b[0]
     assert len(ids_a) > 40 and len(ids_b) > 40
     assert len([s for s in mgr.states() if s.confirmed]) == 2
+
+
+def test_assign_confirmed_first_protects_confirmed_gates():
+    from wfviz.tracking import assign_confirmed_first
+    cost = np.array([[1.0, 5.0, 9.0], [0.5, 0.1, 9.0], [2.0, 2.0, 3.0]])
+    ok = np.array([[True, True, False], [True, True, False], [True, True, True]])
+    confirmed = np.array([True, False, False])
+    # row 0 (confirmed) takes column 0 first although row 1 is cheaper there; columns 0 and 1
+    # lie in row 0's gate, so the tentative rows may only take column 2
+    assert assign_confirmed_first(cost, ok, confirmed) == {0: 0, 2: 2}
+    free = np.zeros(3, dtype=bool)
+    assert assign_confirmed_first(cost, ok, confirmed, protected=free) == {0: 0, 1: 1, 2: 2}
+    assert assign_confirmed_first(np.zeros((0, 3)), np.zeros((0, 3), bool), np.zeros(0, bool)) == {}

@@ -98,6 +98,41 @@ def _blank(n: int) -> dict[str, np.ndarray]:
 _FIELDS = tuple(_blank(0))
 
 
+_BIG = 1e9  # cost of an inadmissible pair
+
+
+def assign_confirmed_first(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarray,
+                           protected: np.ndarray | None = None) -> dict[int, int]:
+    """{row: column} minimising the total ``cost`` over admissible pairs (``ok``): confirmed
+    rows choose first, then tentative rows among the columns left, except ``protected`` ones
+    (default: every column admissible to a confirmed row). No column is used twice."""
+    out: dict[int, int] = {}
+    if cost.size == 0:
+        return out
+    used = np.zeros(cost.shape[1], dtype=bool)
+    if protected is None:
+        protected = ok[confirmed].any(axis=0)
+    for want in (True, False):
+        rows = np.nonzero(confirmed == want)[0]
+        if rows.size == 0:
+            continue
+        allowed = ok[rows] & ~used[None, :]
+        if not want:
+            allowed &= ~protected[None, :]
+        keep = allowed.any(axis=1)  # rows with no admissible column stay out of the solve
+        rows, allowed = rows[keep], allowed[keep]
+        cols = np.nonzero(allowed.any(axis=0))[0]
+        if cols.size == 0:
+            continue
+        c = np.where(allowed[:, cols], cost[np.ix_(rows, cols)], _BIG)
+        ri, ci = linear_sum_assignment(c)
+        for r, k in zip(ri, ci):
+            if c[r, k] < _BIG:
+                out[int(rows[r])] = int(cols[k])
+                used[cols[k]] = True
+    return out
+
+
 class TrackManager:
     """Tracks with CV Kalman filters, confirmed after m hits, deleted after n misses.
 
@@ -246,30 +281,10 @@ class TrackManager:
             near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
             dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
             self.nearest = np.where(near.any(axis=1), dist.argmin(axis=1), -1)
-        result: dict[int, int] = {}
-        used = np.zeros(len(xy), dtype=bool)
-        confirmed_gates = inside[confirmed].any(axis=0)
-        for want_confirmed in (True, False):
-            rows = np.nonzero((confirmed == want_confirmed) & ~meeting)[0]
-            if not rows.size:
-                continue
-            ok = inside[rows] & ~used[None, :]
-            if not want_confirmed:  # a confirmed track's gate is off limits to tentative ones
-                ok &= ~confirmed_gates[None, :]
-            keep_cols = np.nonzero(ok.any(axis=0))[0]
-            if keep_cols.size == 0:
-                continue
-            r, c = rows, keep_cols
-            d = diff[r[:, None], c[None, :]]
-            cost = np.einsum("tdi,tij,tdj->td", d, self._S_inv[r], d)  # squared Mahalanobis
-            big = 1e9
-            cmat = np.where(ok[:, keep_cols], cost, big)
-            ri, ci = linear_sum_assignment(cmat)
-            for r_, c_ in zip(ri, ci):
-                if cmat[r_, c_] < big:
-                    result[int(r[r_])] = int(c[c_])
-                    used[c[c_]] = True
-        return result
+        cost = np.einsum("tdi,tij,tdj->td", diff, self._S_inv, diff)  # squared Mahalanobis
+        # a confirmed track's gate is off limits to tentative ones, even while it is meeting
+        return assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
+                                      protected=inside[confirmed].any(axis=0))
 
     def claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
         """Detections inside a confirmed track's gate: they never start new tracks."""

@@ -39,7 +39,6 @@ from dataclasses import dataclass, field, replace
 import cv2
 import numpy as np
 from scipy.ndimage import find_objects
-from scipy.optimize import linear_sum_assignment
 
 from wfviz.background import suppress_background
 from wfviz.config import FusionConfig
@@ -49,7 +48,7 @@ from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
-from wfviz.tracking import Prediction, TrackEvent, TrackManager
+from wfviz.tracking import Prediction, TrackEvent, TrackManager, assign_confirmed_first
 
 _BIG = 1e9
 DENSE_CROPS = 64  # more search crops than this: one full-frame crop is faster
@@ -255,33 +254,6 @@ def scalar_phi(centre: np.ndarray, area: np.ndarray, grey: np.ndarray, area0: np
     c = np.hypot(centre[..., 0] / max(w - 1, 1), centre[..., 1] / max(h - 1, 1)) / math.sqrt(2.0)
     return (alpha * c + beta * area / np.maximum(area0, 1e-12)
             + gamma * grey / np.where(np.abs(grey0) > 1e-12, grey0, 1e-12))
-
-
-def _assign(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarray) -> dict[int, int]:
-    """{row: column} minimising the total cost; confirmed rows choose first, tentative rows
-    take no column that is admissible to a confirmed row; no column is used twice."""
-    out: dict[int, int] = {}
-    if cost.size == 0:
-        return out
-    used = np.zeros(cost.shape[1], dtype=bool)
-    conf_cols = ok[confirmed].any(axis=0)
-    for want in (True, False):
-        rows = np.nonzero(confirmed == want)[0]
-        if rows.size == 0:
-            continue
-        allowed = ok[rows] & ~used[None, :]
-        if not want:
-            allowed &= ~conf_cols[None, :]
-        cols = np.nonzero(allowed.any(axis=0))[0]
-        if cols.size == 0:
-            continue
-        c = np.where(allowed[:, cols], cost[np.ix_(rows, cols)], _BIG)
-        ri, ci = linear_sum_assignment(c)
-        for r, k in zip(ri, ci):
-            if c[r, k] < _BIG:
-                out[int(rows[r])] = int(cols[k])
-                used[cols[k]] = True
-    return out
 
 
 class FusionTracker:
@@ -619,7 +591,7 @@ class FusionTracker:
         cost = self._cost(preds, pred_xy, half, feats, shape)
         diff = np.abs(feats.centre[None, :, :] - pred_xy[:, None, :])
         ok = (diff <= half[:, None, :]).all(axis=2) & active[:, None] & (cost <= self.config.fusion.max_cost)
-        return _assign(cost, ok, confirmed), cost
+        return assign_confirmed_first(cost, ok, confirmed), cost
 
     def _recover(self, preds: list[Prediction], pred_xy: np.ndarray, lost: list[int],
                  pairs: dict[int, int], feats: Features, confirmed: np.ndarray, half: np.ndarray,
@@ -643,7 +615,7 @@ class FusionTracker:
             d = np.abs(feats.centre[None, :, :] - pred_xy[others][:, None, :])
             used |= (d <= half[others][:, None, :]).all(axis=2).any(axis=0)
         ok = (dist <= r) & ~used[None, :] & (cost <= fc.recover_max_cost)
-        got = _assign(cost, ok, np.ones(len(lost), dtype=bool))
+        got = assign_confirmed_first(cost, ok, np.ones(len(lost), dtype=bool))
         return {lost[k]: j for k, j in got.items()}, {lost[k]: float(cost[k, j]) for k, j in got.items()}
 
     def _matches(self, preds: list[Prediction], pairs: dict[int, int], recovered: dict[int, int],
