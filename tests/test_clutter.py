@@ -23,9 +23,7 @@ def _render(xy: np.ndarray, amplitude: float = 10.0) -> np.ndarray:
 
 
 def _label(sc: StaticClutter, xy: np.ndarray, off, contrast=None) -> np.ndarray:
-    img = _render(xy)
-    peak = img[np.rint(xy[:, 1]).astype(int), np.rint(xy[:, 0]).astype(int)]
-    return sc.update(xy, peak, img, off, contrast)
+    return sc.update(xy, _render(xy), off, contrast)
 
 
 def _frames(n: int, pan: tuple[float, float] = (0.7, 0.4), target_speed: float = 1.0):
@@ -48,15 +46,38 @@ def test_static_crowded_spots_are_clutter_and_the_moving_target_is_not():
 def test_a_fast_pan_decides_before_lag_frames():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3, min_shift=3.0))
     labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(0.9, 0.0))]
-    assert np.isnan(labels[3]).all()  # 2.7 px of pan in 3 frames: a short lag cannot decide yet
+    assert np.isnan(labels[3][:12]).all()  # 2.7 px of pan in 3 frames: cannot call it static yet
+    assert labels[3][12] == 0  # but the target has left its place of 3 frames ago
     assert (labels[4][:12] == 1).all() and labels[4][12] == 0  # 3.6 px after 4 frames
 
 
-def test_a_still_camera_waits_for_the_full_lag():
+def test_a_still_camera_decides_static_only_at_the_full_lag():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3))
     labels = [_label(sc, xy, off) for xy, off in _frames(12, pan=(0.0, 0.0))]
-    assert np.isnan(labels[9]).all()
+    assert np.isnan(labels[2]).all()  # no lag of min_lag frames yet
+    for lab in labels[3:10]:  # short lags: the target left its spot of 3+ frames ago ...
+        assert np.isnan(lab[:12]).all() and lab[12] == 0  # ... the ground may be a slow target
     assert (labels[10][:12] == 1).all() and labels[10][12] == 0
+
+
+def test_a_slow_target_under_a_still_camera_is_not_called_static_early():
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=10, min_lag=3))
+    labels = [_label(sc, xy, off) for xy, off in _frames(11, pan=(0.0, 0.0), target_speed=0.3)]
+    assert all(np.isnan(lab[12]) for lab in labels[:6])  # within 1.5 px of itself: undecided
+    assert not any(lab[12] == 1 for lab in labels)  # never static ...
+    assert labels[10][12] == 0  # ... and moved once 3 px from its place 10 frames ago
+
+
+def test_the_test_compares_the_position_now_with_the_same_position_then():
+    """A merged component's peak may lie pixels from its centroid: the floor is the image
+    at the centroid now, not that peak."""
+    sc = StaticClutter(ClutterConfig(enabled=True, lag=2, min_lag=0, min_neighbours=1))
+    spot = np.array([[40.0, 40.0], [90.0, 90.0]])
+    for _ in range(2):
+        sc.update(spot, _render(spot, 4.0), (0.0, 0.0))  # faint ground spots
+    now = _render(spot, 6.0)
+    now[40, 43] = 40.0  # a hot pixel merged into the first spot's component, 3 px away
+    assert sc.update(spot, now, (0.0, 0.0)).tolist() == [1.0, 1.0]
 
 
 def test_a_spot_that_was_outside_the_frame_is_undecided_not_moved():
@@ -80,8 +101,7 @@ def test_a_spot_that_brightens_well_beyond_its_past_is_not_static():
     for k in range(8):
         img = _render(GROUND)
         img[30, 20] = 10.0 if k < 6 else 40.0  # the first spot flares 4x in frame 6
-        peak = img[np.rint(GROUND[:, 1]).astype(int), np.rint(GROUND[:, 0]).astype(int)]
-        lab = sc.update(GROUND, peak, img, (0.0, 0.0))
+        lab = sc.update(GROUND, img, (0.0, 0.0))
     assert lab[0] == 0 and (lab[1:] == 1).all()
 
 
@@ -105,10 +125,12 @@ def test_the_four_pixels_around_the_position_are_looked_up():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=2, min_lag=0, min_neighbours=1))
     earlier = np.zeros(SHAPE, np.float32)
     earlier[30, 21] = 10.0  # a one-pixel spot at x = 21
-    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
-    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
+    sc.update(np.zeros((0, 2)), earlier, (0.0, 0.0))
+    sc.update(np.zeros((0, 2)), earlier, (0.0, 0.0))
     xy = np.array([[20.4, 30.0], [19.4, 30.0]])  # rounds to 20 (dark); its corners reach 21
-    lab = sc.update(xy, np.array([10.0, 10.0]), np.zeros(SHAPE, np.float32), (0.0, 0.0))
+    now = np.zeros(SHAPE, np.float32)
+    now[30, 20] = now[30, 19] = 10.0  # both detections' own pixels, bright now
+    lab = sc.update(xy, now, (0.0, 0.0))
     assert lab.tolist() == [1.0, 0.0]
 
 
@@ -116,9 +138,9 @@ def test_nan_pixels_in_the_earlier_image_do_not_hide_the_spot():
     sc = StaticClutter(ClutterConfig(enabled=True, lag=1, min_lag=0, min_neighbours=1))
     earlier = np.zeros(SHAPE, np.float32)
     earlier[30, 20], earlier[30, 21] = np.nan, 10.0
-    sc.update(np.zeros((0, 2)), np.zeros(0), earlier, (0.0, 0.0))
-    lab = sc.update(np.array([[20.5, 30.0], [60.0, 60.0]]), np.array([10.0, 10.0]),
-                    np.zeros(SHAPE, np.float32), (0.0, 0.0))
+    sc.update(np.zeros((0, 2)), earlier, (0.0, 0.0))
+    xy = np.array([[20.5, 30.0], [60.0, 60.0]])
+    lab = sc.update(xy, _render(xy), (0.0, 0.0))
     assert lab.tolist() == [1.0, 0.0]
 
 

@@ -9,18 +9,21 @@ moves relative to the ground, and a lone point in clean sky is a target even whe
 :class:`StaticClutter` labels each detection of a frame. Its scene position (from the
 accumulated camera shift, see :class:`wfviz.registration.MotionEstimator`) is looked up in the
 background-suppressed images of ``lag`` (±2) frames earlier: a spot of the ground was there
-already, about as bright (at least ``persist`` times the detection's peak, in one of the four
-pixels around the position), a moving target was not. Comparing images rather than detections
-makes the test immune to spots that flicker across the detection threshold. Labels:
+already, about as bright (at least ``persist`` times as bright as it is there now, taking the
+largest of the four pixels around the position in both images), a moving target was not.
+Comparing images rather than detections makes the test immune to spots that flicker across the
+detection threshold. Labels:
 
 - ``0``: not clutter-like (moved relative to the scene, alone in its neighbourhood, or
   ``bright`` times its threshold or more);
 - ``1``: static and crowded;
 - ``NaN``: crowded but not decidable (fewer than ``lag`` frames seen, or the point was outside
   the frame then). With ``min_lag`` > 0 (0: the full lag only), an undecidable point is tried
-  at shorter lags k down to ``min_lag`` (searching ±k//5 frames around each), as long as the
-  camera moved at least ``min_shift`` px meanwhile (so that a point fixed in the image, as a
-  followed target is, and a point fixed in the scene differ).
+  at shorter lags k down to ``min_lag`` (searching ±k//5 frames around each). Across a camera
+  move of at least ``min_shift`` px a short lag decides either way. Under a still camera it
+  decides only *not static*: a spot that was not there k frames ago has moved (or appeared),
+  but one that was may be a slow target that has not yet left its own earlier image (in the
+  scene and in the image alike), so it stays undecided until the full lag.
 
 The track manager averages these labels over each track's hits
 (:meth:`wfviz.tracking.TrackManager.update`).
@@ -47,11 +50,11 @@ class StaticClutter:
         # per frame: the background-suppressed image and the accumulated camera offset
         self._history: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=config.lag + _SPREAD)
 
-    def update(self, xy: np.ndarray, peak: np.ndarray, suppressed: np.ndarray,
-               offset: tuple[float, float], contrast: np.ndarray | None = None) -> np.ndarray:
-        """Labels of this frame's detections ``xy`` (N, 2) with residual ``peak`` (N,) in
-        the background-suppressed image ``suppressed``; ``offset``: accumulated camera shift;
-        ``contrast``: each detection's peak / the threshold it passed (None: not used)."""
+    def update(self, xy: np.ndarray, suppressed: np.ndarray, offset: tuple[float, float],
+               contrast: np.ndarray | None = None) -> np.ndarray:
+        """Labels of this frame's detections ``xy`` (N, 2) in the background-suppressed image
+        ``suppressed``; ``offset``: accumulated camera shift; ``contrast``: each detection's
+        peak / the threshold it passed (None: not used)."""
         c = self.config
         off = np.asarray(offset, dtype=np.float64)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
@@ -67,13 +70,15 @@ class StaticClutter:
             labels[crowded] = np.nan
             todo = crowded.copy()
             scene = xy - off
-            floor = c.persist * np.asarray(peak, dtype=np.float64).reshape(-1)
+            suppressed = np.asarray(suppressed, dtype=np.float32)
+            # now, at the position itself (a merged component's peak may lie pixels away)
+            floor = c.persist * np.maximum(_corner_max(suppressed, xy)[0], 0.0)
             low = c.min_lag if c.min_lag > 0 else c.lag
             for k in range(c.lag, low - 1, -1):
                 if not todo.any() or k > len(history):
                     continue
-                if k < c.lag and math.hypot(*(off - history[-k][1])) < c.min_shift:
-                    continue  # camera still: a short lag cannot tell scene from image motion
+                # camera still: a short lag tells "moved" but not "static" from "slow"
+                still = k < c.lag and math.hypot(*(off - history[-k][1])) < c.min_shift
                 spread = _SPREAD if k == c.lag else k // 5
                 seen = np.zeros(n, dtype=bool)    # inside the lag frame then
                 static = np.zeros(n, dtype=bool)  # as bright a spot there in a frame around it
@@ -82,10 +87,10 @@ class StaticClutter:
                         continue
                     image, then = history[-j]
                     value, inside = _corner_max(image, scene[todo] + then)
-                    static[todo] |= inside & (value >= floor[todo])
+                    static[todo] |= inside & (value >= floor[todo]) & (value > 0)
                     if j == k:
                         seen[todo] = inside
-                here = todo & seen
+                here = todo & seen & ~(still & static)
                 labels[here] = static[here]
                 todo &= ~here
             if contrast is not None and c.bright > 0:

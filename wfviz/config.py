@@ -130,9 +130,10 @@ class ClutterConfig:
 
     Not in the paper (docs/pipeline.md §9). A detection is *static* when, in scene coordinates
     (camera motion removed), the background-suppressed image of ``lag`` (±2) frames earlier
-    held at least ``persist`` times its peak there; where that is not decidable (clip start,
-    point outside the frame then), shorter lags k down to ``min_lag`` (0: none; ±k//5 frames) are
-    tried when the camera moved ``min_shift`` px meanwhile. It is *crowded* when at least ``min_neighbours`` other
+    held at least ``persist`` times what this frame's image holds there; where that is not
+    decidable (clip start, point outside the frame then), shorter lags k down to ``min_lag``
+    (0: none; ±k//5 frames) are tried: across a camera move of ``min_shift`` px they decide
+    either way, under a smaller one only "not static". It is *crowded* when at least ``min_neighbours`` other
     detections lie within ``neighbourhood`` px (0: anywhere in the frame). Detections ``bright``
     times above the threshold or more are never clutter. A track whose crowded hits are mostly
     static (mean above ``max_static`` after ``min_known`` decided hits: a plain mean while that

@@ -106,7 +106,7 @@ class GEWCTracker:
             self._offset += shift
             self.manager.shift(dx, dy)
         labels = None if self.clutter is None else self.clutter.update(
-            dets.xy, dets.peak, suppressed, self._offset,
+            dets.xy, suppressed, self._offset,
             dets.peak / np.maximum(dets.thresholds(), 1e-12))
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
