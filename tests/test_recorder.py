@@ -97,7 +97,8 @@ def test_static_clutter_stage_is_logged(tmp_path):
     np.save(clip, np.clip(frames, 0, 255).astype(np.uint8))
     cfg = tmp_path / "c.toml"
     cfg.write_text("[horizon]\nenabled = false\n[circle]\nenabled = false\n"
-                   "[clutter]\nenabled = true\nlag = 5\n")
+                   "[clutter]\nenabled = true\nlag = 5\n"
+                   "[tracking]\nconfirm_significance = 1.0\nconfirm_blobness = 0.3\n")
     rrd = tmp_path / "g.rrd"
     proc = subprocess.run([sys.executable, "-m", "wfviz", "record", str(clip), "--config", str(cfg),
                            "-o", str(rrd), "--no-images"], capture_output=True, text=True, timeout=300)
@@ -107,4 +108,11 @@ def test_static_clutter_stage_is_logged(tmp_path):
     assert sorted(static) == list(range(24))
     assert all(static[f] == 0 for f in range(5))             # undecided before the lag
     assert all(static[f] == counts[f] >= 10 for f in range(10, 24))  # every fixed spot
-    assert any(c.entity_path == "/camera/clutter" for c in RrdReader(rrd).stream())
+    chunks = list(RrdReader(rrd).stream())
+    assert any(c.entity_path == "/camera/clutter" for c in chunks)
+    hover = [c.to_record_batch() for c in chunks if c.entity_path == "/camera/detections"]
+    names = {n for b in hover for n in b.schema.names}
+    assert {"significance", "blobness"} <= {n.split(":")[-1] for n in names}, names
+    blob = [v for b in hover for n in b.schema.names if n.endswith("blobness")
+            for row in b.column(n).to_pylist() if row for v in row]
+    assert len(blob) >= 10 * 14 and min(blob) > 0.5  # round spots

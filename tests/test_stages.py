@@ -8,7 +8,7 @@ import pytest
 from wfviz.background import suppress_background
 from wfviz.centroid import gewc_centroid, intensity_centroid, measure
 from wfviz.config import DetectionConfig, HorizonConfig
-from wfviz.detection import detect
+from wfviz.detection import blobness, detect
 from wfviz.horizon import find_horizon, max_gradient
 from wfviz.imaging_circle import estimate_imaging_circle, non_imaging_mask, ImagingCircle
 from wfviz.synth.psf import add_gaussian_spot
@@ -114,6 +114,21 @@ def test_detect_finds_spots_at_their_positions():
     d = detect(res, np.ones(res.shape, bool), DetectionConfig(k_sigma=5.0))
     for x, y in truth:
         assert np.min(np.hypot(d.xy[:, 0] - x, d.xy[:, 1] - y)) < 0.5
+
+
+def test_blobness_tells_round_spots_from_ridges():
+    rng = np.random.default_rng(2)
+    img = 100 + rng.normal(0, 1.0, (80, 120))
+    add_gaussian_spot(img, 20.4, 30.7, 60.0, 1.0)       # a point target
+    add_gaussian_spot(img, 50.0, 30.0, 60.0, 1.6)       # a wider one
+    img[:, 90] += 60.0                                   # a one-pixel bright line (a reed, a wire)
+    img[60, 10:70] += 60.0                               # and a horizontal one
+    xy = np.array([[20.4, 30.7], [50.0, 30.0], [90.0, 40.0], [40.0, 60.0]])
+    b = blobness(img, xy, 1.0)
+    assert b[0] > 0.85 and b[1] > 0.85                  # λ₂ ≈ λ₁
+    assert abs(b[2]) < 0.3 and abs(b[3]) < 0.3          # one curvature (the rest is noise)
+    assert blobness(img, np.zeros((0, 2)), 1.0).shape == (0,)
+    assert blobness(np.ones((2, 2)), xy[:1], 1.0).tolist() == [-1.0]  # too small to tell
 
 
 def centroid_errors(snr: float, n: int = 200, seed: int = 7):

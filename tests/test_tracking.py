@@ -61,6 +61,24 @@ def test_confirmation_after_six_hits_and_deletion_after_three_misses():
     assert len(mgr) == 0
 
 
+def test_confirmation_waits_for_round_hits_with_confirm_blobness():
+    """A track whose hits are ridge-like (low mean blobness) is never confirmed; a round one is."""
+    for shape, confirmed in ((0.1, False), (0.8, True)):
+        mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm_blobness=0.4))
+        events = []
+        for f in range(10):
+            preds = mgr.predict(f)
+            xy = np.array([[50 + 1.0 * f, 40.0]])
+            pairs = mgr.associate(preds, xy)
+            born = xy[[i for i in range(len(xy)) if i not in pairs.values()]]
+            events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
+                                 shapes={i: shape for i in pairs}, birth_shapes=np.full(len(born), shape))
+        got = [e for e in events if e.kind == "confirmed"]
+        assert bool(got) == confirmed
+        if confirmed:
+            assert got[0].frame == 5 and "mean blobness 0.80" in got[0].message
+
+
 def _run_from(mgr, frames, a, b):
     events = []
     for f in range(a, b):

@@ -78,6 +78,7 @@ class DetectionConfig:
     k_sigma: float = field(default=4.0, metadata=_range(0.0, None))
     local_window: int = field(default=31, metadata=_range(5, 255))
     significance: bool = False
+    blob_sigma: float = field(default=1.0, metadata=_range(0.3, 10.0))
     merge_gap: int = field(default=1, metadata=_range(0, 10))
     min_area: int = field(default=1, metadata=_range(1, None))
     max_area: int = field(default=400, metadata=_range(1, None))
@@ -113,6 +114,7 @@ class TrackingConfig:
 
     confirm_hits: int = field(default=6, metadata=_range(1, None))
     confirm_significance: float = field(default=0.0, metadata=_range(0.0, None))
+    confirm_blobness: float = field(default=0.0, metadata=_range(0.0, 1.0))
     min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))
@@ -232,6 +234,8 @@ class FusionConfig:
         if getattr(t, "confirm_significance", 0.0) > 0:
             raise ConfigError("tracking.confirm_significance is not supported by the fusion tracker "
                               "(candidates found in the search windows carry no significance); keep 0")
+        if getattr(t, "confirm_blobness", 0.0) > 0:
+            raise ConfigError("tracking.confirm_blobness is not supported by the fusion tracker; keep 0")
         if getattr(t, "compensate_motion", False):
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
         if getattr(t, "meeting_misses", False):

@@ -83,6 +83,7 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         meeting_frames=np.zeros(n, dtype=np.int64),
         meet_again=np.ones(n, dtype=bool),      # False after a meeting until the next hit
         score_sum=np.zeros(n),                  # sum of the significance of the hits
+        shape_sum=np.zeros(n),                  # sum of the blobness of the hits
         origin=np.zeros((n, 2)),                # birth position, moved with the camera
         history=np.zeros((n, HISTORY, 2)),      # last reported (x, y), oldest first
         history_len=np.zeros(n, dtype=np.int64),
@@ -300,12 +301,15 @@ class TrackManager:
     def update(self, measurements: dict[int, tuple[float, float]], births: np.ndarray,
                scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None,
                clutter: dict[int, float] | None = None, birth_clutter: np.ndarray | None = None,
+               shapes: dict[int, float] | None = None, birth_shapes: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
         ``scores`` / ``birth_scores``: the significance of each measurement / birth; a track is
         confirmed at ``confirm_hits`` hits when its mean significance also reaches
-        ``confirm_significance`` (0 = hits only, as in the paper). ``clutter`` /
+        ``confirm_significance`` (0 = hits only, as in the paper). ``shapes`` / ``birth_shapes``:
+        the blobness of each (:func:`wfviz.detection.blobness`); a track is confirmed only when its
+        hits' mean reaches ``confirm_blobness`` (0 = not used). ``clutter`` /
         ``birth_clutter``: static-clutter labels (:mod:`wfviz.clutter`; 1 static, 0 not, NaN
         undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
         ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
@@ -313,7 +317,7 @@ class TrackManager:
         above ``delete_static`` is deleted. Returns the frame's events (including meeting
         events from :meth:`predict`).
         """
-        scores = scores or {}
+        scores, shapes = scores or {}, shapes or {}
         tc = self.tcfg
         n = len(self)
         self.innovation[:] = np.nan
@@ -331,6 +335,7 @@ class TrackManager:
             self.misses[idx] = 0
             self.meet_again[idx] = True
             self.score_sum[idx] += np.array([scores.get(i, 0.0) for i in idx.tolist()])
+            self.shape_sum[idx] += np.array([shapes.get(i, 0.0) for i in idx.tolist()])
         if clutter:  # measured tracks, and meeting tracks with a detection near them
             rows = np.array(sorted(clutter), dtype=np.int64)
             self._add_clutter(rows, np.array([clutter[i] for i in rows.tolist()]))
@@ -346,8 +351,10 @@ class TrackManager:
         moved = np.hypot(reported[:, 0] - self.origin[:, 0], reported[:, 1] - self.origin[:, 1])
         need = tc.confirm_significance
         mean_score = self.score_sum / np.maximum(self.hits, 1)
+        mean_shape = self.shape_sum / np.maximum(self.hits, 1)
         confirm = (measured & ~self.confirmed & (self.hits >= tc.confirm_hits)
-                   & ((need <= 0) | (mean_score >= need)) & (moved >= tc.min_displacement))
+                   & ((need <= 0) | (mean_score >= need)) & (moved >= tc.min_displacement)
+                   & ((tc.confirm_blobness <= 0) | (mean_shape >= tc.confirm_blobness)))
         delete = missed & (self.misses >= tc.max_misses)
         static = np.zeros(n, dtype=bool)
         if clutter is not None and self.clutter_rule is not None:
@@ -364,6 +371,7 @@ class TrackManager:
             elif confirm[i]:
                 self.confirmed[i] = True
                 why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
+                why += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
                 why += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
                 self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why}")
             else:
@@ -374,7 +382,8 @@ class TrackManager:
             keep = ~delete
             for name in _FIELDS:
                 setattr(self, name, getattr(self, name)[keep])
-        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores, birth_clutter)
+        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores, birth_clutter,
+                    birth_shapes)
         return self._events
 
     def _add_clutter(self, rows: np.ndarray, labels: np.ndarray) -> None:
@@ -388,7 +397,7 @@ class TrackManager:
             self.clutter[rows] = (1 - a) * self.clutter[rows] + a * labels
 
     def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None,
-               birth_clutter: np.ndarray | None = None) -> None:
+               birth_clutter: np.ndarray | None = None, birth_shapes: np.ndarray | None = None) -> None:
         k = len(births)
         if not k:
             return
@@ -400,6 +409,7 @@ class TrackManager:
         new["P"][:] = self.P0
         new["hits"][:] = 1
         new["score_sum"][:] = 0.0 if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
+        new["shape_sum"][:] = 0.0 if birth_shapes is None else np.asarray(birth_shapes, dtype=np.float64)
         new["origin"][:] = births
         new["history"][:, -1] = births
         new["history_len"][:] = 1

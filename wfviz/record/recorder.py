@@ -355,8 +355,10 @@ class Recorder:
         d = result.detections
         points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR)
         if len(d):  # hover values; an empty AnyValues batch only draws a warning
+            extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
+                ("significance", d.significance), ("blobness", d.blobness)) if v is not None}
             rec.log("camera/detections", points, rr.AnyValues(
-                area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64)))
+                area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra))
         else:
             rec.log("camera/detections", points)
         self.scalar("detection/count", len(d))

@@ -11,7 +11,7 @@ from wfviz.centroid import measure_many
 from wfviz.clutter import StaticClutter
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, signal_to_clutter
+from wfviz.detection import Detections, blobness, detect, signal_to_clutter
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.registration import MotionEstimator
@@ -97,6 +97,8 @@ class GEWCTracker:
         if self._significance:
             dets = replace(dets, significance=signal_to_clutter(
                 img, self._region, dets.xy, dets.peak, c.detection.local_window))
+        if c.tracking.confirm_blobness > 0:
+            dets = replace(dets, blobness=blobness(img, dets.xy, c.detection.blob_sigma))
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
         shift = None
@@ -117,11 +119,13 @@ class GEWCTracker:
         used = np.zeros(len(dets), dtype=bool)
         used[list(pairs.values())] = True
         born = ~used & ~claimed
-        sig = dets.significance
+        sig, blob = dets.significance, dets.blobness
         events = self.manager.update(
             {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
             scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
             birth_scores=None if sig is None else sig[born],
+            shapes=None if blob is None else {i: float(blob[m.detection]) for i, m in meas.items()},
+            birth_shapes=None if blob is None else blob[born],
             clutter=None if labels is None else self._track_clutter(labels, meas),
             birth_clutter=None if labels is None else labels[born])
         lap("kalman")
