@@ -79,6 +79,50 @@ def test_confirmation_waits_for_round_hits_with_confirm_blobness():
             assert got[0].frame == 5 and "mean blobness 0.80" in got[0].message
 
 
+def _confirmed_track(mgr: TrackManager, frames: int = 8) -> None:
+    for f in range(frames):  # a target moving 1 px/frame in x, confirmed at the 6th hit
+        preds = mgr.predict(f)
+        xy = np.array([[50.0 + f, 40.0]])
+        pairs = mgr.associate(preds, xy)
+        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[len(pairs):])
+
+
+@pytest.mark.parametrize("radius,eligible,kept", [(0.0, True, False), (15.0, True, True),
+                                                  (15.0, False, False), (6.0, True, False)])
+def test_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept):
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    _confirmed_track(mgr)
+    tid = mgr.track_ids[0]
+    preds = mgr.predict(8)  # predicted near (58, 40); the target jumped 8 px down
+    xy = np.array([[58.0, 48.0]])
+    pairs = mgr.associate(preds, xy)
+    assert pairs == {}  # outside the gate
+    if radius > 0:
+        pairs = mgr.reacquire(preds, xy, pairs, np.array([eligible]), radius)
+    born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
+    events = mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born)
+    assert (0 in pairs) == kept
+    if kept:
+        assert [e.kind for e in events] == ["reacquired"] and "8.0 px from its prediction" in events[0].message
+        assert np.abs(mgr.innovations()[tid]).max() < 1e-9  # the filter restarted at the detection
+        assert abs(mgr.x[0, 1] - 48.0) < 1e-9 and abs(mgr.velocity(0)[0] - 1.0) < 0.3  # velocity kept
+    else:
+        assert mgr.states()[0].misses == 1 and len(mgr) == 2  # a miss, and a new tentative track
+
+
+def test_reacquire_leaves_detections_in_another_confirmed_gate():
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    for f in range(8):  # two targets 12 px apart
+        preds = mgr.predict(f)
+        xy = np.array([[50.0 + f, 40.0], [50.0 + f, 52.0]])
+        pairs = mgr.associate(preds, xy)
+        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[[j for j in range(2) if j not in pairs.values()]])
+    preds = mgr.predict(8)
+    xy = np.array([[58.0, 52.0]])  # only the second target is seen
+    pairs = mgr.associate(preds, xy)
+    assert mgr.reacquire(preds, xy, pairs, np.array([True]), 15.0) == pairs  # the first takes nothing
+
+
 def _run_from(mgr, frames, a, b):
     events = []
     for f in range(a, b):

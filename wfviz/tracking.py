@@ -287,6 +287,39 @@ class TrackManager:
         return assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
                                       protected=inside[confirmed].any(axis=0))
 
+    def reacquire(self, preds: list[Prediction], xy: np.ndarray, pairs: dict[int, int],
+                  eligible: np.ndarray, radius: float) -> dict[int, int]:
+        """``pairs`` plus re-acquisitions (not in the paper): a confirmed, non-meeting track with
+        no detection in its gate takes the nearest ``eligible`` detection within ``radius`` px
+        of its prediction that is unused and outside every confirmed gate (nearest pairs
+        first), and its filter restarts there (velocity kept, P = P₀): a jerk of the camera,
+        or of a target the camera follows, threw it out of its gate."""
+        if not preds or len(xy) == 0:
+            return pairs
+        centres, _, confirmed, meeting = self._arrays(preds)
+        lost = np.array([i for i in np.nonzero(confirmed & ~meeting)[0].tolist() if i not in pairs],
+                        dtype=np.int64)
+        free = np.asarray(eligible, dtype=bool) & ~self.claimed(preds, xy)
+        free[list(pairs.values())] = False
+        cand = np.nonzero(free)[0]
+        if lost.size == 0 or cand.size == 0:
+            return pairs
+        d = np.hypot(*(xy[None, cand, :] - centres[lost, None, :]).transpose(2, 0, 1))
+        out = dict(pairs)
+        for flat in np.argsort(d, axis=None).tolist():
+            r, k = divmod(flat, cand.size)
+            if d[r, k] > radius:
+                break
+            i, j = int(lost[r]), int(cand[k])
+            if i in out or j in out.values():
+                continue
+            out[i] = j
+            self.x[i, :2] = xy[j]
+            self.P[i] = self.P0
+            self._event("reacquired", i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
+                                         f"{d[r, k]:.1f} px from its prediction (nothing in its gate)")
+        return out
+
     def claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
         """Detections inside a confirmed track's gate: they never start new tracks."""
         if len(xy) == 0 or not preds:

@@ -112,6 +112,9 @@ class GEWCTracker:
             dets.peak / np.maximum(dets.thresholds(), 1e-12))
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
+        if c.tracking.reacquire > 0:
+            pairs = self.manager.reacquire(preds, dets.xy, pairs, self._could_confirm(dets, labels),
+                                           c.tracking.reacquire)
         lap("associate")
         meas = self._measure(pairs, preds, dets, suppressed)
         lap("centroid")
@@ -139,6 +142,19 @@ class GEWCTracker:
             bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed, camera_shift=shift,
             clutter=labels,
         )
+
+    def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
+        """Detections that pass the confirmation tests in use one by one (significance,
+        blobness, not static clutter): the ones a lost track may re-acquire."""
+        t = self.config.tracking
+        ok = np.ones(len(dets), dtype=bool)
+        if dets.significance is not None and t.confirm_significance > 0:
+            ok &= dets.significance >= t.confirm_significance
+        if dets.blobness is not None:
+            ok &= dets.blobness >= t.confirm_blobness
+        if labels is not None:
+            ok &= labels != 1
+        return ok
 
     def _track_clutter(self, labels: np.ndarray, meas: dict[int, Measurement]) -> dict[int, float]:
         """Each track's static-clutter label: its measurement's, or (meeting mode, no
