@@ -56,6 +56,7 @@ class StaticClutter:
         ``suppressed``; ``offset``: accumulated camera shift; ``contrast``: each detection's
         peak / the threshold it passed (None: not used)."""
         c = self.config
+        image = np.asarray(suppressed, dtype=np.float32)
         off = np.asarray(offset, dtype=np.float64)
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         history = self._history
@@ -70,9 +71,8 @@ class StaticClutter:
             labels[crowded] = np.nan
             todo = crowded.copy()
             scene = xy - off
-            suppressed = np.asarray(suppressed, dtype=np.float32)
             # now, at the position itself (a merged component's peak may lie pixels away)
-            floor = c.persist * np.maximum(_corner_max(suppressed, xy)[0], 0.0)
+            floor = c.persist * np.maximum(_corner_max(image, xy)[0], 0.0)
             low = c.min_lag if c.min_lag > 0 else c.lag
             for k in range(c.lag, low - 1, -1):
                 if not todo.any() or k > len(history):
@@ -85,8 +85,8 @@ class StaticClutter:
                 for j in range(k - spread, k + spread + 1):
                     if not 1 <= j <= len(history):
                         continue
-                    image, then = history[-j]
-                    value, inside = _corner_max(image, scene[todo] + then)
+                    earlier, then = history[-j]
+                    value, inside = _corner_max(earlier, scene[todo] + then)
                     static[todo] |= inside & (value >= floor[todo]) & (value > 0)
                     if j == k:
                         seen[todo] = inside
@@ -95,7 +95,8 @@ class StaticClutter:
                 todo &= ~here
             if contrast is not None and c.bright > 0:
                 labels[np.asarray(contrast) >= c.bright] = 0.0
-        history.append((np.asarray(suppressed, dtype=np.float32).copy(), off.copy()))
+        # keep a copy only when the conversion did not already make one
+        history.append((image.copy() if image is suppressed else image, off.copy()))
         return labels
 
 

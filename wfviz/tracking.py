@@ -314,8 +314,7 @@ class TrackManager:
             if i in out or j in out.values():
                 continue
             out[i] = j
-            self.x[i, :2] = xy[j]
-            self.P[i] = self.P0
+            self.restart(int(self.ids[i]), np.concatenate([xy[j], self.x[i, 2:]]))
             self._event("reacquired", i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
                                          f"{d[r, k]:.1f} px from its prediction (nothing in its gate)")
         return out
