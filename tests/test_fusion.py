@@ -218,7 +218,7 @@ def test_registered_and_config_round_trips():
         config_from_dict({"fusion": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0}}, FusionConfig)
 
 
-@pytest.mark.parametrize("key", ["confirm_significance = 4.0", "confirm_blobness = 0.4", "reacquire = 15.0",
+@pytest.mark.parametrize("key", ["confirm_significance = 4.0", "confirm_blobness = 0.4", "reacquire = 15.0", "confirm_moving = 6.0",
                                  "compensate_motion = true", "meeting_misses = true"])
 def test_gewc_only_tracking_options_are_refused(key):
     with pytest.raises(ConfigError, match=f"tracking.{key.split()[0]} is not supported by the fusion"):

@@ -22,6 +22,7 @@ CONFIG = ROOT / "configs" / "real-gewc.toml"
 # sequence, frames, measured Pd, measured FA/frame (gate 5 px)
 CASES = [
     ("tensoristd_sky/easy1", 40, 0.925, 0.0),
+    ("tensoristd_sky/easy2", 30, 0.900, 0.067),
     ("tensoristd_sky/easy3", 30, 0.900, 0.0),
     ("tensoristd_sky/easy6", 60, 0.950, 0.0),
     ("daub_tensoristd/sequence5", 60, 0.933, 0.0),

@@ -6,7 +6,7 @@ import numpy as np
 import pytest
 
 from wfviz import kalman
-from wfviz.config import KalmanConfig, TrackingConfig
+from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 from wfviz.tracking import TrackManager, extrapolate
 
 
@@ -78,6 +78,72 @@ def test_confirmation_waits_for_round_hits_with_confirm_blobness():
         if confirmed:
             assert got[0].frame == 5 and "mean blobness 0.80" in got[0].message
 
+
+
+def _scored_run(tcfg: TrackingConfig, points: list, shift: tuple[float, float] = (0.0, 0.0),
+                score: float = 1.5, labels: list[float] | None = None) -> tuple[list, TrackManager]:
+    """Feed one detection per frame (None: nothing seen) with significance ``score`` (and
+    static-clutter label ``labels[f]``); the camera moves the scene by ``shift`` px per frame."""
+    mgr = TrackManager(KalmanConfig(), tcfg)
+    if labels is not None:
+        mgr.clutter_rule = ClutterConfig(enabled=True)
+    events = []
+    for f, point in enumerate(points):
+        if f:
+            mgr.shift(*shift)
+        preds = mgr.predict(f)
+        xy = np.array([] if point is None else [point], dtype=float).reshape(-1, 2)
+        pairs = mgr.associate(preds, xy)
+        born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
+        lab = None if labels is None else labels[f]
+        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
+                             scores={i: score for i in pairs}, birth_scores=np.full(len(born), score),
+                             clutter=None if lab is None else {i: lab for i in pairs},
+                             birth_clutter=None if lab is None else np.full(len(born), lab))
+    return events, mgr
+
+
+_LOW_SCR = dict(confirm_hits=4, confirm_significance=4.0)
+
+
+@pytest.mark.parametrize("case,moving,points,shift,frame", [
+    ("straight mover", 6.0, [(50 + 3.0 * f, 40.0) for f in range(10)], (0, 0), 3),
+    ("option off", 0.0, [(50 + 3.0 * f, 40.0) for f in range(10)], (0, 0), None),
+    ("slow mover: waits for 6 px", 6.0, [(50 + 1.0 * f, 40.0) for f in range(10)], (0, 0), 6),
+    ("zig-zag", 6.0, [(50 + 2.0 * f, 40.0 + 2.0 * (f % 2)) for f in range(10)], (0, 0), None),
+    ("fixed in the image, camera panning", 6.0, [(50.0, 40.0)] * 10, (-3.0, 0), None),
+    ("fixed in the scene, camera panning", 6.0, [(50 - 3.0 * f, 40.0) for f in range(10)], (-3.0, 0), None),
+    ("a missed frame", 6.0, [(50 + 3.0 * f, 40.0) if f != 2 else None for f in range(10)], (0, 0), None),
+])
+def test_confirm_moving_relaxes_the_significance_for_straight_movers(case, moving, points, shift, frame):
+    """Mean significance 1.5 < 4: only a gapless track moving 6 px in a straight line, in the
+    scene and in the image alike, is confirmed (at confirm_moving_significance 1)."""
+    events, mgr = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=moving), points, shift)
+    got = [e for e in events if e.kind == "confirmed"]
+    assert len(mgr) == 1 and mgr.states()[0].hits == sum(p is not None for p in points), case
+    assert (got[0].frame if got else None) == frame, case
+    if got:
+        assert "mean significance 1.5 (a mover:" in got[0].message
+
+
+def test_confirm_moving_still_needs_its_own_significance():
+    points = [(50 + 3.0 * f, 40.0) for f in range(10)]
+    events, _ = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=6.0, confirm_moving_significance=2.0),
+                            points)
+    assert not any(e.kind == "confirmed" for e in events)
+    events, _ = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=6.0), points, score=4.5)
+    got = [e for e in events if e.kind == "confirmed"]  # significant anyway: no mover note
+    assert got[0].frame == 3 and "mover" not in got[0].message
+
+
+@pytest.mark.parametrize("labels,frame", [([0.0] * 10, 3), ([0.0, 1.0] * 5, None)])
+def test_confirm_moving_needs_the_clutter_stage_to_agree(labels, frame):
+    """Half its hits judged static (mean 0.5: allowed by clutter.max_static, above the mover's
+    0.25): the straight track is not a mover."""
+    events, _ = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=6.0),
+                            [(50 + 3.0 * f, 40.0) for f in range(10)], labels=labels)
+    got = [e for e in events if e.kind == "confirmed"]
+    assert (got[0].frame if got else None) == frame
 
 def _confirmed_track(mgr: TrackManager, frames: int = 8) -> None:
     for f in range(frames):  # a target moving 1 px/frame in x, confirmed at the 6th hit

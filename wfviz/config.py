@@ -115,6 +115,10 @@ class TrackingConfig:
     confirm_hits: int = field(default=6, metadata=_range(1, None))
     confirm_significance: float = field(default=0.0, metadata=_range(0.0, None))
     confirm_blobness: float = field(default=0.0, metadata=_range(0.0, 1.0))
+    # px; 0: off (not in the paper): a gapless, straight mover needs only confirm_moving_significance
+    confirm_moving: float = field(default=0.0, metadata=_range(0.0, None))
+    confirm_moving_significance: float = field(default=1.0, metadata=_range(0.0, None))
+    confirm_straightness: float = field(default=0.8, metadata=_range(0.0, 1.0))
     reacquire: float = field(default=0.0, metadata=_range(0.0, None))  # px; 0: off (not in the paper)
     min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
@@ -238,6 +242,9 @@ class FusionConfig:
         if getattr(t, "reacquire", 0.0) > 0:
             raise ConfigError("tracking.reacquire is not supported by the fusion tracker (it recovers "
                               "lost tracks by global detection); keep 0")
+        if getattr(t, "confirm_moving", 0.0) > 0:
+            raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (it relaxes "
+                              "confirm_significance, which fusion does not use); keep 0")
         if getattr(t, "confirm_blobness", 0.0) > 0:
             raise ConfigError("tracking.confirm_blobness is not supported by the fusion tracker; keep 0")
         if getattr(t, "compensate_motion", False):

@@ -68,6 +68,7 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
 
 
 HISTORY = 3  # reported positions kept per track: eq. 15 reads s(k-1) and s(k-3)
+MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 
 def _blank(n: int) -> dict[str, np.ndarray]:
@@ -85,6 +86,9 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         score_sum=np.zeros(n),                  # sum of the significance of the hits
         shape_sum=np.zeros(n),                  # sum of the blobness of the hits
         origin=np.zeros((n, 2)),                # birth position, moved with the camera
+        birth_image=np.zeros((n, 2)),           # birth position in the image (not moved)
+        path=np.zeros(n),                       # length of the reported path (scene), since birth
+        gapless=np.ones(n, dtype=bool),         # updated in every frame since birth
         history=np.zeros((n, HISTORY, 2)),      # last reported (x, y), oldest first
         history_len=np.zeros(n, dtype=np.int64),
         velocities=np.zeros((n, 3, 2)),         # filtered (vx, vy) of the last updates
@@ -374,6 +378,8 @@ class TrackManager:
         # history: the measurement, or the (coasting / extrapolated) state
         reported = self.x[:, :2].copy()
         reported[idx] = z
+        self.path += np.hypot(*(reported - self.history[:, -1]).T)
+        self.gapless &= measured
         self._push_history(np.arange(n), reported)
         missed = ~measured & ~self.meeting
         if tc.meeting_misses:  # a meeting track with nothing in its gate has lost its target
@@ -384,8 +390,11 @@ class TrackManager:
         need = tc.confirm_significance
         mean_score = self.score_sum / np.maximum(self.hits, 1)
         mean_shape = self.shape_sum / np.maximum(self.hits, 1)
+        mover = self._mover(reported, moved)
+        significant = ((need <= 0) | (mean_score >= need)
+                       | (mover & (mean_score >= tc.confirm_moving_significance)))
         confirm = (measured & ~self.confirmed & (self.hits >= tc.confirm_hits)
-                   & ((need <= 0) | (mean_score >= need)) & (moved >= tc.min_displacement)
+                   & significant & (moved >= tc.min_displacement)
                    & ((tc.confirm_blobness <= 0) | (mean_shape >= tc.confirm_blobness)))
         delete = missed & (self.misses >= tc.max_misses)
         static = np.zeros(n, dtype=bool)
@@ -403,6 +412,8 @@ class TrackManager:
             elif confirm[i]:
                 self.confirmed[i] = True
                 why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
+                if need > 0 and mean_score[i] < need:
+                    why += f" (a mover: {moved[i]:.1f} px in a straight line since birth)"
                 why += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
                 why += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
                 self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why}")
@@ -417,6 +428,19 @@ class TrackManager:
         self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores, birth_clutter,
                     birth_shapes)
         return self._events
+
+    def _mover(self, reported: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """Tracks that count as movers under ``tracking.confirm_moving`` (not in the paper):
+        updated in every frame since birth, ``confirm_moving`` px or more from the birth point
+        both in the scene (``moved``; camera motion removed) and in the image, along a path at
+        most 1 / ``confirm_straightness`` times that long, and (with the static-clutter stage)
+        with a mean static label of at most ``MOVER_MAX_STATIC``: the clutter stage agrees."""
+        tc = self.tcfg
+        if tc.confirm_moving <= 0:
+            return np.zeros(len(self), dtype=bool)
+        in_image = np.hypot(*(reported - self.birth_image).T)
+        return (self.gapless & (moved >= tc.confirm_moving) & (in_image >= tc.confirm_moving)
+                & (moved >= tc.confirm_straightness * self.path) & (self.clutter <= MOVER_MAX_STATIC))
 
     def _add_clutter(self, rows: np.ndarray, labels: np.ndarray) -> None:
         """Fold decided static-clutter labels into the tracks' means: a plain mean while 1/n (n
@@ -443,6 +467,7 @@ class TrackManager:
         new["score_sum"][:] = 0.0 if birth_scores is None else np.asarray(birth_scores, dtype=np.float64)
         new["shape_sum"][:] = 0.0 if birth_shapes is None else np.asarray(birth_shapes, dtype=np.float64)
         new["origin"][:] = births
+        new["birth_image"][:] = births
         new["history"][:, -1] = births
         new["history_len"][:] = 1
         for name in _FIELDS:
