@@ -2,6 +2,7 @@
 
     python benchmarks/soak.py                          # 20 000 frames of long-1024 (~15 min)
     python benchmarks/soak.py --frames 2000 --every 100 --json soak.json
+    python benchmarks/soak.py --config configs/real-gewc.toml   # every optional stage on
 
 Runs :func:`wfviz.run.run` (what `wfviz track` calls) on the lazily generated scenario with a
 tracks CSV, samples every ``--every`` frames the live tracks, the tracks the manager keeps, the
@@ -22,7 +23,7 @@ from pathlib import Path
 
 from wfviz.run import run
 from wfviz.synth.scenarios import make_scenario
-from wfviz.trackers import make_tracker
+from wfviz.trackers import load_tracker, make_tracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
 from doc_blocks import machine  # noqa: E402
@@ -41,10 +42,11 @@ def main() -> int:
     ap.add_argument("--every", type=int, default=500, help="sample every N frames")
     ap.add_argument("--seed", type=int, default=0)
     ap.add_argument("--json", type=Path, help="write the samples and summary here")
+    ap.add_argument("--config", type=Path, help="GEWC config file (default: the defaults)")
     args = ap.parse_args()
 
     clip = make_scenario(args.scenario, seed=args.seed, n_frames=args.frames)
-    tracker = make_tracker("gewc")
+    tracker = load_tracker("gewc", args.config) if args.config else make_tracker("gewc")
     samples: list[dict] = []
     t0 = time.perf_counter()
 
@@ -76,6 +78,7 @@ def main() -> int:
             for key, slack in (("kept", 20), ("history", 1000), ("objects", 5000), ("rss_mb", 50))}
     result = dict(
         machine=machine(), scenario=args.scenario, seed=args.seed, frames=summary.frames,
+        config=str(args.config) if args.config else "defaults",
         seconds=round(seconds, 1), ms_per_frame=round(seconds * 1e3 / max(summary.frames, 1), 2),
         tracker_ms_per_frame=round(summary.tracker_ms, 2), confirmed_ids=len(summary.confirmed),
         tracks_csv_mb=round(csv_mb, 1), max_live=max(s["live"] for s in samples),

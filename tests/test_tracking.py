@@ -6,7 +6,9 @@ import numpy as np
 import pytest
 
 from wfviz import kalman
-from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
+from wfviz.clip import Frame
+from wfviz.config import ClutterConfig, GEWCConfig, KalmanConfig, TrackingConfig, config_from_dict
+from wfviz.trackers.gewc import GEWCTracker
 from wfviz.tracking import TrackManager, extrapolate
 
 
@@ -251,3 +253,33 @@ def test_assign_confirmed_first_protects_confirmed_gates():
     free = np.zeros(3, dtype=bool)
     assert assign_confirmed_first(cost, ok, confirmed, protected=free) == {0: 0, 1: 1, 2: 2}
     assert assign_confirmed_first(np.zeros((0, 3)), np.zeros((0, 3), bool), np.zeros(0, bool)) == {}
+
+
+def _edge_clip(n: int = 12, seed: int = 0):
+    """A target (peak 25, σ 0.8 px) moving 3 px/frame along a 30-grey-level step edge 3 px
+    below it, where the 31 px window's std is the step's (SCR ≈ 1.6), and a spot as bright that
+    stays put on the same edge; noise σ 2."""
+    rng = np.random.default_rng(seed)
+    yy, xx = np.mgrid[0:128, 0:160]
+    for k in range(n):
+        img = 100.0 + 30.0 * (yy < 64) + rng.normal(0, 2.0, yy.shape)
+        for x0 in (30 + 3.0 * k, 130.0):
+            img += 25.0 * np.exp(-((xx - x0) ** 2 + (yy - 67.0) ** 2) / (2 * 0.8 ** 2))
+        yield Frame(k, k / 25, np.clip(img, 0, 255).astype(np.uint8))
+
+
+@pytest.mark.parametrize("moving,frame", [(0.0, None), (6.0, 3)])
+def test_gewc_confirms_a_mover_under_an_edge_only_with_confirm_moving(moving, frame):
+    cfg = config_from_dict({"horizon": {"exclude_ground": "never"},
+                            "tracking": {"confirm_hits": 4, "confirm_significance": 4.0,
+                                         "confirm_moving": moving}}, GEWCConfig)
+    tracker = GEWCTracker(cfg)
+    confirmed = {}
+    for f in _edge_clip():
+        for t in tracker.step(f).tracks:
+            if t.confirmed:
+                confirmed.setdefault(t.track_id, (f.index, t.x, t.y))
+    if frame is None:
+        assert confirmed == {}
+    else:  # the mover alone, at its 4th frame; never the spot that stays put
+        assert [(f, round(x), round(y)) for f, x, y in confirmed.values()] == [(3, 39, 67)]
