@@ -218,8 +218,38 @@ def test_registered_and_config_round_trips():
         config_from_dict({"fusion": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0}}, FusionConfig)
 
 
-@pytest.mark.parametrize("key", ["confirm_significance = 4.0", "confirm_blobness = 0.4", "reacquire = 15.0", "confirm_moving = 6.0",
+@pytest.mark.parametrize("key", ["reacquire = 15.0", "confirm_moving = 6.0",
                                  "compensate_motion = true", "meeting_misses = true"])
 def test_gewc_only_tracking_options_are_refused(key):
     with pytest.raises(ConfigError, match=f"tracking.{key.split()[0]} is not supported by the fusion"):
         config_from_dict(tomllib.loads(f"[tracking]\n{key}\n"), FusionConfig)
+
+
+def _spot_and_ridge(n: int = 12, seed: int = 0):
+    """A round spot (peak 100, σ 1 px) at (40, 40) and a ridge (a 1 px line of 11 px, +100) at
+    y = 80, both still, on a background of 500 with noise σ 3."""
+    rng = np.random.default_rng(seed)
+    for k in range(n):
+        img = 500.0 + rng.normal(0, 3.0, (120, 160))
+        add_gaussian_spot(img, 40.0, 40.0, 100.0, 1.0)
+        img[80, 95:106] += 100.0
+        yield Frame(k, 0.02 * k, np.clip(img, 0, 65535).astype(np.uint16))
+
+
+@pytest.mark.parametrize("tests,confirmed", [({}, {(40, 40), (100, 80)}),
+                                             ({"confirm_blobness": 0.4, "confirm_significance": 4.0},
+                                              {(40, 40)})])
+def test_fusion_confirmation_tests_drop_the_ridge(tests, confirmed):
+    cfg = config_from_dict({**PLAIN, "defects": {"enabled": False}, "tracking": tests}, FusionConfig)
+    trk = FusionTracker(cfg)
+    seen = set()
+    for f in _spot_and_ridge():
+        r = trk.step(f)
+        seen |= {(round(t.x), round(t.y)) for t in r.tracks if t.confirmed}
+    assert seen == confirmed
+    d = r.detections
+    if tests:  # computed per candidate, window search included: hover values of the recording
+        j = int(np.argmin(np.hypot(d.xy[:, 0] - 40, d.xy[:, 1] - 40)))
+        assert d.significance[j] >= 4.0 and d.blobness[j] > 0.8
+    else:
+        assert d.significance is None and d.blobness is None

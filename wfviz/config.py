@@ -236,17 +236,12 @@ class FusionConfig:
         if f.alpha + f.beta + f.gamma <= 0:
             raise ConfigError("fusion.alpha + fusion.beta + fusion.gamma must be positive")
         t = self.tracking  # GEWC-only options of the shared section
-        if getattr(t, "confirm_significance", 0.0) > 0:
-            raise ConfigError("tracking.confirm_significance is not supported by the fusion tracker "
-                              "(candidates found in the search windows carry no significance); keep 0")
         if getattr(t, "reacquire", 0.0) > 0:
             raise ConfigError("tracking.reacquire is not supported by the fusion tracker (it recovers "
                               "lost tracks by global detection); keep 0")
         if getattr(t, "confirm_moving", 0.0) > 0:
             raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (it relaxes "
                               "confirm_significance, which fusion does not use); keep 0")
-        if getattr(t, "confirm_blobness", 0.0) > 0:
-            raise ConfigError("tracking.confirm_blobness is not supported by the fusion tracker; keep 0")
         if getattr(t, "compensate_motion", False):
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
         if getattr(t, "meeting_misses", False):
