@@ -240,8 +240,8 @@ class FusionConfig:
             raise ConfigError("tracking.reacquire is not supported by the fusion tracker (it recovers "
                               "lost tracks by global detection); keep 0")
         if getattr(t, "confirm_moving", 0.0) > 0:
-            raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (it relaxes "
-                              "confirm_significance, which fusion does not use); keep 0")
+            raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (without "
+                              "camera-motion compensation it cannot tell scene from image motion); keep 0")
         if getattr(t, "compensate_motion", False):
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
         if getattr(t, "meeting_misses", False):
