@@ -23,7 +23,6 @@ detection, 3 px away from it: an edge leaves some of them clean).
 from __future__ import annotations
 
 import argparse
-import csv
 import sys
 import warnings
 from collections import defaultdict
@@ -37,6 +36,7 @@ sys.path.insert(0, str(ROOT))
 
 from wfviz.clip import open_clip  # noqa: E402
 from wfviz.detection import local_stats, sample_at  # noqa: E402
+from wfviz.evaluate import read_truth  # noqa: E402
 from wfviz.trackers import load_tracker  # noqa: E402
 
 DATA = ROOT.parent / "shared" / "data" / "real"
@@ -59,11 +59,7 @@ def _subwindow_std(image: np.ndarray, xy: np.ndarray, size: int = 11, gap: int =
 
 def record(seq: Path) -> dict:
     """Every measured hit of every track of a GEWC run on ``seq`` with its features."""
-    truth: dict[int, list] = defaultdict(list)
-    with open(seq / "truth.csv", newline="") as fh:
-        for row in csv.DictReader(fh):
-            if row.get("x") not in (None, ""):
-                truth[int(row["frame"])].append((float(row["x"]), float(row["y"])))
+    truth, _ = read_truth(seq / "truth.csv")  # {frame: [(target_id, x, y)]}, visible points
     tracker = load_tracker("gewc", ROOT / "configs" / "real-gewc.toml")
     hits, frames = [], 0
     with warnings.catch_warnings():
@@ -86,7 +82,7 @@ def record(seq: Path) -> dict:
             scr["subwindow"] = d.peak / np.maximum(_subwindow_std(img, d.xy), 1e-6)
             target = np.full(len(d), -1)
             if truth.get(frame.index):
-                t = np.array(truth[frame.index])
+                t = np.array([(x, y) for _, x, y in truth[frame.index]])
                 dist = np.hypot(d.xy[:, 0, None] - t[None, :, 0], d.xy[:, 1, None] - t[None, :, 1])
                 target = np.where(dist.min(1) < 5, dist.argmin(1), -1)
             shift = np.asarray(tracker._offset, dtype=float)

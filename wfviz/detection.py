@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -109,6 +109,19 @@ def signal_to_clutter(image: np.ndarray, region: np.ndarray, xy: np.ndarray, pea
         return np.zeros(0)
     _, std = local_stats(image, region, window)
     return peak / np.maximum(sample_at(std, xy), 1e-6)
+
+
+def score_detections(dets: Detections, image: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
+                     significance: bool, shape: bool) -> Detections:
+    """``dets`` with their signal-to-clutter ratio (``significance``: :func:`signal_to_clutter`
+    over ``cfg.local_window``) and blobness (``shape``: :func:`blobness` at ``cfg.blob_sigma``)
+    in ``image``, as the confirmation tests and the recording's hover values need them."""
+    if significance:
+        dets = replace(dets, significance=signal_to_clutter(image, region, dets.xy, dets.peak,
+                                                            cfg.local_window))
+    if shape:
+        dets = replace(dets, blobness=blobness(image, dets.xy, cfg.blob_sigma))
+    return dets
 
 
 def blobness(image: np.ndarray, xy: np.ndarray, sigma: float) -> np.ndarray:

@@ -43,7 +43,7 @@ from scipy.ndimage import find_objects
 from wfviz.background import suppress_background
 from wfviz.config import FusionConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, blobness, detect, signal_to_clutter
+from wfviz.detection import Detections, detect, score_detections
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
@@ -529,9 +529,11 @@ class FusionTracker:
             born_idx = np.nonzero(~used & ~claimed)[0]
             births = feats.centre[born_idx]
         velocities = {i: self.manager.velocity(i) for i in recovered}
-        sig, blob = self._scores(img, dets, feats)
-        if sig is not None or blob is not None:  # hover values of camera/detections
-            dets = replace(dets, significance=sig, blobness=blob)
+        tc = self.config.tracking  # for the confirmation tests (and the hover values)
+        dets = score_detections(dets, img, self._region, self.config.detection,
+                                self.config.detection.significance or tc.confirm_significance > 0,
+                                tc.confirm_blobness > 0)
+        sig, blob = dets.significance, dets.blobness
         taken = {**pairs, **recovered}
         events = events_pre + self.manager.update(
             meas, births,
@@ -568,19 +570,6 @@ class FusionTracker:
             innovations=self.manager.innovations(), bad_pixels=self.bad.flagged,
             bad_pixels_changed=bad_changed,
         )
-
-    def _scores(self, img: np.ndarray, dets: Detections, feats: Features
-                ) -> tuple[np.ndarray | None, np.ndarray | None]:
-        """Each candidate's signal-to-clutter ratio and blobness at its centre, when a
-        confirmation test needs them (``tracking.confirm_significance`` / ``confirm_blobness``;
-        see :func:`wfviz.detection.signal_to_clutter`, :func:`wfviz.detection.blobness`)."""
-        c = self.config
-        sig = blob = None
-        if len(dets) and c.tracking.confirm_significance > 0 and self._region is not None:
-            sig = signal_to_clutter(img, self._region, feats.centre, dets.peak, c.detection.local_window)
-        if len(dets) and c.tracking.confirm_blobness > 0:
-            blob = blobness(img, feats.centre, c.detection.blob_sigma)
-        return sig, blob
 
     # -- association ----------------------------------------------------------------------
     def _ref_arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:

@@ -2,7 +2,7 @@
 
 from __future__ import annotations
 
-from dataclasses import dataclass, replace
+from dataclasses import dataclass
 
 import numpy as np
 
@@ -11,7 +11,7 @@ from wfviz.centroid import measure_many
 from wfviz.clutter import StaticClutter
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, blobness, detect, signal_to_clutter
+from wfviz.detection import Detections, detect, score_detections
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.registration import MotionEstimator
@@ -94,11 +94,8 @@ class GEWCTracker:
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
         dets = detect(suppressed, self._region, c.detection, self._zones)
-        if self._significance:
-            dets = replace(dets, significance=signal_to_clutter(
-                img, self._region, dets.xy, dets.peak, c.detection.local_window))
-        if c.tracking.confirm_blobness > 0:
-            dets = replace(dets, blobness=blobness(img, dets.xy, c.detection.blob_sigma))
+        dets = score_detections(dets, img, self._region, c.detection, self._significance,
+                                c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
         shift = None
