@@ -22,6 +22,7 @@ Point = tuple[int, float, float]
 Points = dict[int, list[Point]]
 _NAN = float("nan")
 _TRUE, _FALSE = {"1", "1.0", "true", "True"}, {"0", "0.0", "false", "False"}
+SETTLE = 6  # pd_settled leaves out each target's first SETTLE visible frames (the paper's m = 6 hits)
 
 
 class TruthError(ValueError):
@@ -64,6 +65,8 @@ class TargetEval:
     main_track: int | None
     id_switches: int
     cle_rms: float
+    settled_frames: int = 0   # visible frames after the first SETTLE ones
+    settled_matched: int = 0  # of those, matched
 
 
 @dataclass(frozen=True)
@@ -89,6 +92,7 @@ class EvalResult:
     latency_mean: float
     p_f: float
     per_target: tuple[TargetEval, ...]
+    pd_settled: float = _NAN  # Pd without each target's first SETTLE visible frames
 
     def to_dict(self) -> dict:
         """JSON-ready dict: floats, ints, lists; NaN becomes None."""
@@ -245,10 +249,14 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> Eva
         d, fr = hit.D.to_numpy(float)[mine], hit_frames[mine]
         k, t = int(mine.sum()), len(visible[tid])
         main = Counter(int(h) for h in hit.HId[mine]).most_common(1)
+        late = visible[tid][SETTLE:]
         per.append(TargetEval(tid, t, k, k / t, float(min(fr) - visible[tid][0]) if k else _NAN,
                               main[0][0] if main else None,
                               int(((ev.Type == "SWITCH") & (ev.OId == tid)).sum()),
-                              float(np.sqrt(np.mean(d ** 2))) if k else _NAN))
+                              float(np.sqrt(np.mean(d ** 2))) if k else _NAN,
+                              len(late), int(np.isin(np.asarray(fr), late).sum()) if late else 0))
+    settled_n = sum(p.settled_frames for p in per)
+    settled_m = sum(p.settled_matched for p in per)
     dist = hit.D.to_numpy(float)
     n_truth, fp = int(s.num_objects), int(s.num_false_positives)
     lat = [p.latency for p in per if not math.isnan(p.latency)]
@@ -261,7 +269,8 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> Eva
         pd=float(s.num_detections) / n_truth if n_truth else _NAN,
         fa_per_frame=fp / len(frames) if frames else _NAN,
         latency_mean=float(np.mean(lat)) if lat else _NAN,
-        p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per))
+        p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per),
+        pd_settled=settled_m / settled_n if settled_n else _NAN)
 
 
 def read_truth(path: Path | str) -> tuple[Points, Points]:
@@ -293,7 +302,8 @@ def format_table(result: EvalResult) -> str:
         f"matches {r.matches}   misses {r.misses}   false positives {r.false_positives}"
         f"   ignored (hidden) {r.ignored}   ID switches {r.id_switches}   fragmentations {r.fragmentations}",
         f"CLE mean {num(r.cle_mean)} px   RMS {num(r.cle_rms)} px",
-        f"Pd {num(r.pd)}   false alarms/frame {num(r.fa_per_frame)}   p_f {num(r.p_f, '.4f')}"
+        f"Pd {num(r.pd)} ({num(r.pd_settled)} after each target's first {SETTLE} frames)"
+        f"   false alarms/frame {num(r.fa_per_frame)}   p_f {num(r.p_f, '.4f')}"
         f"   mean latency {num(r.latency_mean, '.1f')} frames",
         "",
         f"{'target':>6} {'frames':>6} {'matched':>7} {'p_d':>6} {'latency':>7} {'track':>5} {'id-sw':>5} {'CLE rms':>7}",

@@ -1,0 +1,219 @@
+"""A tracker on the three validation groups, scored separately: own scenarios, the independent
+samples (../shared/data/independent) and every real sequence (../shared/data/real).
+
+The real sequences are split into two declared halves, A and B: within each set and class,
+sorted by name, sequences alternate A, B, A, ... (see :func:`real_half`). A rule or value is
+chosen on one half and reported on the other. Run from the repository root:
+
+    python benchmarks/validation.py                      # every group, default configuration
+    python benchmarks/validation.py --groups real --half A --config my.toml
+    python benchmarks/validation.py --write              # docs/accuracy.md validation block
+    python benchmarks/validation.py --json out.json      # every row, for comparisons
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import json
+import math
+import os
+import sys
+import time
+from collections import defaultdict
+from concurrent.futures import ProcessPoolExecutor
+from dataclasses import dataclass
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+SHARED = ROOT.parent / "shared" / "data"
+DOC = ROOT / "docs" / "accuracy.md"
+BEGIN, END = "<!-- validation:begin -->", "<!-- validation:end -->"
+OWN = ("fov70-maneuver", "fov70-four-targets", "fov180-city-aircraft", "fov180-launches",
+       "uniform-50hz", "long-1024")
+INDEPENDENT = {"gewc": ("S1", "S2", "S3", "S4", "S7"), "fusion": ("S1", "S2", "S3", "S4", "S7"),
+               "starfield": ("S5",), "tbd": ("S6",)}
+GATES = {"own": 3.0, "independent": 3.0, "real": 5.0}
+GOALS = {"independent": (0.85, 0.05), "real": (0.9, 0.1)}  # (Pd, FA per frame)
+
+
+@dataclass(frozen=True)
+class Job:
+    group: str
+    name: str
+    source: str      # folder, or synth:NAME:SEED
+    truth: str | None
+    half: str = ""
+    stop: int | None = None
+
+
+def real_half(data: Path) -> dict[str, str]:
+    """{set/sequence: 'A' or 'B'}: within each set, sorted by class then name, alternating (so
+    each set and each class is split as evenly as it can be)."""
+    out: dict[str, str] = {}
+    for listing in sorted(data.glob("*/sequences.csv")):
+        with open(listing, newline="", encoding="utf-8") as fh:
+            rows = sorted(csv.DictReader(fh), key=lambda r: (r["class"], r["sequence"]))
+        for i, r in enumerate(rows):
+            out[f"{listing.parent.name}/{r['sequence']}"] = "AB"[i % 2]
+    return out
+
+
+def jobs(groups: list[str], tracker: str, seeds: list[int], long_frames: int, half: str | None,
+         only: list[str] | None) -> list[Job]:
+    out: list[Job] = []
+    if "own" in groups:
+        for name in OWN:
+            for seed in seeds:
+                out.append(Job("own", f"{name}:{seed}", f"synth:{name}:{seed}", None,
+                               stop=long_frames if name == "long-1024" else None))
+    if "independent" in groups:
+        for s in INDEPENDENT.get(tracker, ()):
+            d = SHARED / "independent" / s
+            if (d / "frames").is_dir():
+                out.append(Job("independent", s, str(d / "frames"), str(d / "truth.csv")))
+    if "real" in groups:
+        halves = real_half(SHARED / "real")
+        for key, h in sorted(halves.items()):
+            d = SHARED / "real" / key
+            if half and h != half or not (d / "truth.csv").is_file():
+                continue
+            out.append(Job("real", key, str(d), str(d / "truth.csv"), h))
+    if only:
+        out = [j for j in out if any(o in j.name for o in only)]
+    return out
+
+
+def run_job(job: Job, tracker: str, config: str | None) -> dict:
+    """Track one clip in-process and score it (confirmed tracks, the group's gate)."""
+    import numpy as np
+
+    from wfviz.clip import open_clip
+    from wfviz.evaluate import read_truth
+    from wfviz.run import run
+    from wfviz.trackers import load_tracker
+
+    clip = open_clip(job.source)
+    if job.truth is None:  # a synthetic scenario brings its own truth
+        shown: dict = defaultdict(list)
+        hidden: dict = defaultdict(list)
+        for row in clip.truth():
+            (shown if row.visible else hidden)[row.frame].append((row.target_id, row.x, row.y))
+        truth = (dict(shown), dict(hidden))
+    else:
+        truth = read_truth(job.truth)
+    rows: list[tuple[int, int, float, float]] = []
+
+    def outside(frame, result) -> None:  # noqa: ANN001
+        h, w = frame.image.shape
+        for t in result.tracks:
+            if not (-0.5 <= t.x <= w - 0.5 and -0.5 <= t.y <= h - 0.5):
+                rows.append((frame.index, t.track_id, t.x, t.y))
+
+    t0 = time.perf_counter()
+    summary = run(clip, load_tracker(tracker, config), truth=truth, gate=GATES[job.group],
+                  stop=job.stop, on_frame=outside)
+    s = summary.scores
+
+    def num(v: float) -> float | None:
+        return None if v is None or not math.isfinite(v) else float(v)
+
+    return dict(group=job.group, name=job.name, half=job.half, frames=summary.frames,
+                pd=num(s.pd), pd_settled=num(s.pd_settled), fa=num(s.fa_per_frame), idsw=s.id_switches,
+                mota=num(s.mota), idf1=num(s.idf1), cle=num(s.cle_rms), ms=summary.tracker_ms,
+                outside=len(rows), wall=time.perf_counter() - t0,
+                targets=[(p.target_id, p.frames, round(float(np.nan_to_num(p.p_d)), 3)) for p in s.per_target])
+
+
+def meets(r: dict) -> bool | None:
+    goal = GOALS.get(r["group"])
+    if goal is None or r["pd"] is None:
+        return None
+    pd = r["pd_settled"] if r["group"] == "independent" else r["pd"]
+    return (pd or 0.0) >= goal[0] and r["fa"] <= goal[1] and (r["group"] != "independent" or r["idsw"] == 0)
+
+
+def fmt(v: float | None, spec: str) -> str:
+    return "–" if v is None else format(v, spec)
+
+
+def table(results: list[dict]) -> list[str]:
+    lines = ["| group | clip | half | frames | Pd | Pd (settled) | FA/frame | ID sw | MOTA | ms/frame | goal |",
+             "|---|---|---|---|---|---|---|---|---|---|---|"]
+    for r in results:
+        ok = meets(r)
+        lines.append(f"| {r['group']} | {r['name']} | {r['half'] or '–'} | {r['frames']} | {fmt(r['pd'], '.3f')} | "
+                     f"{fmt(r['pd_settled'], '.3f')} | {fmt(r['fa'], '.3f')} | {r['idsw']} | "
+                     f"{fmt(r['mota'], '.3f')} | {r['ms']:.2f} | {'' if ok is None else ('yes' if ok else 'no')} |")
+    return lines
+
+
+def summary(results: list[dict]) -> list[str]:
+    """One line per group (and real half): goals met, mean Pd and FA."""
+    out = []
+    keys: dict[tuple[str, str], list[dict]] = defaultdict(list)
+    for r in results:
+        keys[(r["group"], "")].append(r)
+        if r["half"]:
+            keys[(r["group"], r["half"])].append(r)
+    for (g, h), rs in keys.items():
+        pds = [r["pd"] or 0.0 for r in rs]
+        fas = [r["fa"] for r in rs if r["fa"] is not None]
+        motas = [r["mota"] for r in rs if r["mota"] is not None]
+        ok = [meets(r) for r in rs]
+        met = f", goal met on {sum(bool(o) for o in ok)} of {len(rs)}" if ok and ok[0] is not None else ""
+        out.append(f"- {g}{' half ' + h if h else ''}: {len(rs)} clips, mean Pd {sum(pds) / len(pds):.3f}, "
+                   f"mean FA/frame {sum(fas) / max(len(fas), 1):.3f} (worst {max(fas, default=0):.2f}), "
+                   f"min MOTA {min(motas, default=float('nan')):.3f}, ID switches {sum(r['idsw'] for r in rs)}, "
+                   f"rows outside the image {sum(r['outside'] for r in rs)}{met}")
+    return out
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
+    ap.add_argument("--tracker", default="gewc")
+    ap.add_argument("--config", default=None)
+    ap.add_argument("--groups", nargs="+", default=["own", "independent", "real"],
+                    choices=["own", "independent", "real"])
+    ap.add_argument("--half", choices=["A", "B"], default=None, help="real sequences of one half only")
+    ap.add_argument("--only", nargs="+", default=None, help="clips whose name contains one of these")
+    ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--long-frames", type=int, default=300)
+    ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
+    ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md")
+    args = ap.parse_args()
+    todo = jobs(args.groups, args.tracker, args.seeds, args.long_frames, args.half, args.only)
+    if not todo:
+        sys.exit("nothing to run (is ../shared/data there?)")
+    t0 = time.perf_counter()
+    with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
+        futures = [pool.submit(run_job, j, args.tracker, args.config) for j in todo]
+        results = []
+        for f in futures:
+            r = f.result()
+            results.append(r)
+            ok = meets(r)
+            print(f"{r['group']:11s} {r['name']:34s} {r['half'] or '-'} Pd {fmt(r['pd'], '.3f')} "
+                  f"settled {fmt(r['pd_settled'], '.3f')} FA {fmt(r['fa'], '.3f')} IDsw {r['idsw']} "
+                  f"MOTA {fmt(r['mota'], '.3f')} out {r['outside']} {r['ms']:.1f} ms"
+                  f"{'' if ok is None else ('  ok' if ok else '  MISS')}", flush=True)
+    print("\n".join(summary(results)))
+    print(f"({time.perf_counter() - t0:.0f} s)")
+    if args.json:
+        args.json.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
+    if args.write:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from doc_blocks import write_block
+
+        cmd = " ".join(["python benchmarks/validation.py", *sys.argv[1:]]).replace(" --write", "")
+        block = "\n".join([f"Generated by `{cmd}` (tracker `{args.tracker}`, "
+                           f"{'configuration ' + args.config if args.config else 'default configuration'}; "
+                           f"confirmed tracks only; match gate 3 px for own and independent clips, 5 px for "
+                           f"real ones; 'Pd (settled)' leaves out each target's first 6 visible frames).",
+                           "", *summary(results), "", *table(results)])
+        write_block(DOC, BEGIN, END, block, heading="## Validation: three groups")
+
+
+if __name__ == "__main__":
+    main()
