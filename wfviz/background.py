@@ -2,6 +2,8 @@
 
 from __future__ import annotations
 
+from collections import deque
+
 import cv2
 import numpy as np
 
@@ -20,3 +22,83 @@ def suppress_background(image: np.ndarray, size: int = 5, method: str = "opening
     if method == "erosion":
         return cv2.subtract(img, cv2.erode(img, kernel))
     raise ValueError(f"unknown suppression method {method!r} (use 'opening' or 'erosion')")
+
+
+class TemporalBackground:
+    """What the scene looked like ``lag`` frames ago, for each pixel of this frame (not in the
+    paper): the background-suppressed images of the past, camera motion removed, so that
+    ``residual - background`` keeps what is new or has moved and drops what stays put (stars,
+    lamps, buildings, textured ground, fixed-pattern noise, hot spots).
+
+    A still camera (no ``shift`` since the start) keeps a running mean of the residual (the
+    first ``memory`` frames equally weighted, then exponentially with weight 1 / ``memory``)
+    delayed by ``lag`` frames: fixed-pattern noise averages out of it, and a target moving more
+    than its own size in ``lag`` frames is not in it. A moving camera uses the single image
+    ``lag`` frames back, moved by the camera's offset to the nearest pixel and grown by one pixel
+    (a 3 × 3 maximum: registration to the pixel is not exact). Before ``lag`` frames have been
+    seen the oldest frame stands in (the lag is as long as the clip so far); on the first frame
+    there is no background (None).
+    """
+
+    def __init__(self, lag: int = 16, memory: int = 32) -> None:
+        self.lag, self.memory = lag, memory
+        self._ring: deque[tuple[np.ndarray, np.ndarray]] = deque(maxlen=lag)
+        self._mean: np.ndarray | None = None
+        self._count = 0
+        self._still = True
+
+    def update(self, residual: np.ndarray, offset: np.ndarray | tuple[float, float]
+               ) -> np.ndarray | None:
+        """This frame's background (float32, or None on the first frame); then remembers it."""
+        r = np.asarray(residual, dtype=np.float32)
+        off = np.asarray(offset, dtype=np.float64)
+        ring = self._ring
+        if ring and ring[-1][0].shape != r.shape:
+            ring.clear()
+            self._mean, self._count = None, 0
+        if np.any(off != 0.0):
+            self._still = False
+        background = None
+        if ring:
+            if self._still:
+                if len(ring) == ring.maxlen:  # the frame leaving the delay line joins the mean
+                    old = ring[0][0]
+                    self._count += 1
+                    a = max(1.0 / self._count, 1.0 / self.memory)
+                    self._mean = old.copy() if self._mean is None else (1 - a) * self._mean + a * old
+                background = self._mean if self._mean is not None else ring[0][0]
+            else:
+                old, then = ring[0]
+                background = cv2.dilate(_shifted(old, off - then), np.ones((3, 3), np.uint8))
+        ring.append((r.copy() if r is residual else r, off.copy()))
+        return background
+
+
+def change(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -> np.ndarray:
+    """``residual - g · background``, float32 (NaN where the background is): the gain ``g``
+    (automatic gain control, a slow drift of the sensor's response) is fitted by least squares
+    on the pixels where the background is brightest (above its ``bright`` quantile), so that
+    static structure cancels however the video's contrast drifts."""
+    r = residual.astype(np.float32, copy=False)
+    bs, rs = background[::2, ::2], r[::2, ::2]  # every 4th pixel fits the gain as well
+    known = np.isfinite(bs)
+    b = bs[known]
+    if b.size < 16:
+        return r - background
+    top = b >= np.quantile(b, bright)
+    bt, rt = b[top].astype(np.float64), rs[known][top].astype(np.float64)
+    den = float(np.dot(bt, bt))
+    g = float(np.dot(rt, bt)) / den if den > 0 else 1.0
+    return r - np.float32(g) * background
+
+
+def _shifted(image: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``image`` moved by ``d`` (x, y) rounded to whole pixels; uncovered pixels are NaN."""
+    dx, dy = int(round(float(d[0]))), int(round(float(d[1])))
+    h, w = image.shape
+    out = np.full_like(image, np.nan)
+    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
+    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
+    if abs(dx) < w and abs(dy) < h:
+        out[yd, xd] = image[ys, xs]
+    return out

@@ -31,6 +31,9 @@ class CircleConfig:
     radius: float | None = field(default=None, metadata=_range(1.0, None))
     margin: float = field(default=6.0, metadata=_range(0.0, None))
     enabled: bool = True
+    # px at the frame's edge left out of the search (not in the paper): the 5x5 suppression has
+    # no neighbours there, and video codecs disturb the outermost rows and columns
+    border: int = field(default=2, metadata=_range(0, 64))
 
 
 @dataclass(frozen=True)
@@ -74,7 +77,7 @@ class SuppressionConfig:
 class DetectionConfig:
     """Track start points: adaptive threshold (mean + k*std) and connected components."""
 
-    mode: str = field(default="global", metadata={"choices": ("global", "local")})
+    mode: str = field(default="cfar", metadata={"choices": ("cfar", "global", "local")})
     k_sigma: float = field(default=4.0, metadata=_range(0.0, None))
     local_window: int = field(default=31, metadata=_range(5, 255))
     significance: bool = False
@@ -83,6 +86,15 @@ class DetectionConfig:
     min_area: int = field(default=1, metadata=_range(1, None))
     max_area: int = field(default=400, metadata=_range(1, None))
     max_detections: int = field(default=200, metadata=_range(1, None))
+
+
+@dataclass(frozen=True)
+class NoiseConfig:
+    """Local noise estimate of the residual (wfviz.noise): tile size (px) and the weight of
+    the previous frame's tile statistics."""
+
+    tile: int = field(default=32, metadata=_range(8, 256))
+    smoothing: float = field(default=0.5, metadata=_range(0.0, 0.99))
 
 
 @dataclass(frozen=True)
@@ -106,12 +118,27 @@ class KalmanConfig:
     gate_sigma: float = field(default=3.0, metadata=_range(0.5, None))
     gate_min: float = field(default=3.0, metadata=_range(0.5, None))
     gate_max: float = field(default=15.0, metadata=_range(1.0, None))
+    # px: a coasting track whose position uncertainty (gate_sigma std) grows past this is deleted
+    coast_limit: float = field(default=45.0, metadata=_range(1.0, None))
 
 
 @dataclass(frozen=True)
 class TrackingConfig:
-    """Track management: confirmation, deletion, meeting mode (eq. 15)."""
+    """Track management: confirmation, deletion, meeting mode (eq. 15).
 
+    ``confirm``: "sprt" (sequential test, :mod:`wfviz.track_score`; not in the paper) or "hits"
+    (the paper: ``confirm_hits`` hits, deleted after ``max_misses`` misses).
+    """
+
+    confirm: str = field(default="sprt", metadata={"choices": ("sprt", "hits")})
+    false_tracks_per_1000: float = field(default=1.0, metadata=_range(1e-6, 1000.0))
+    p_detect: float = field(default=0.9, metadata=_range(0.05, 0.999))
+    beta: float = field(default=0.01, metadata=_range(1e-6, 0.5))
+    p_lost: float = field(default=0.001, metadata=_range(1e-9, 0.5))
+    position_noise: float = field(default=0.2, metadata=_range(0.001, 10.0))
+    require_motion: bool = True
+    static_change_rate: float = field(default=0.05, metadata=_range(1e-6, 0.5))
+    target_change_rate: float = field(default=0.5, metadata=_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=_range(1, None))
     confirm_significance: float = field(default=0.0, metadata=_range(0.0, None))
     confirm_blobness: float = field(default=0.0, metadata=_range(0.0, 1.0))
@@ -128,7 +155,9 @@ class TrackingConfig:
     meeting_overlap: bool = False   # meet only when the two gates overlap (not in the paper)
     meeting_misses: bool = False    # meeting mode: no detection near the extrapolation = a miss
     trail_length: int = field(default=60, metadata=_range(2, None))
-    compensate_motion: bool = False
+    # camera motion (wfviz.registration): "auto" measures it and moves the tracks once the camera
+    # is seen to move; "on" moves them by every measured shift; "off" does not measure it
+    compensate_motion: str = field(default="auto", metadata={"choices": ("auto", "on", "off")})
 
 
 @dataclass(frozen=True)
@@ -172,6 +201,7 @@ class GEWCConfig:
     circle: CircleConfig = CircleConfig()
     horizon: HorizonConfig = HorizonConfig()
     suppression: SuppressionConfig = SuppressionConfig()
+    noise: NoiseConfig = NoiseConfig()
     detection: DetectionConfig = DetectionConfig()
     centroid: CentroidConfig = CentroidConfig()
     kalman: KalmanConfig = KalmanConfig()
@@ -242,7 +272,7 @@ class FusionConfig:
         if getattr(t, "confirm_moving", 0.0) > 0:
             raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (without "
                               "camera-motion compensation it cannot tell scene from image motion); keep 0")
-        if getattr(t, "compensate_motion", False):
+        if getattr(t, "compensate_motion", "off") == "on":
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
         if getattr(t, "meeting_misses", False):
             raise ConfigError("tracking.meeting_misses is not supported by the fusion tracker "

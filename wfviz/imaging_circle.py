@@ -153,4 +153,7 @@ class ImagingMask:
             return self.mask, False
         self.circle = resolve_circle(image, self.cfg)
         self.mask = non_imaging_mask(image.shape, self.circle, self.cfg.margin)
+        b = self.cfg.border
+        if b > 0:
+            self.mask[:b], self.mask[-b:], self.mask[:, :b], self.mask[:, -b:] = True, True, True, True
         return self.mask, True

@@ -1,34 +1,122 @@
-"""Global image motion between consecutive frames (camera pan/jitter), by phase correlation."""
+"""Camera motion: the scene's offset in the image since the clip's first frame (not in the paper).
+
+The GEWC paper assumes a staring camera. Narrow views on pan/tilt platforms (the real
+sequences) move: the ground slides under a target the camera follows. :class:`CameraMotion`
+measures that motion so that the tracker can tell scene motion from image motion, and says
+when it cannot (too few features) and when the camera has not moved at all.
+
+Method: Shi–Tomasi corners of a key frame are followed into each new frame by pyramidal
+Lucas–Kanade optical flow (OpenCV), kept when the flow back from the new frame returns within
+``fb_error`` px of the corner (forward–backward check). The frame's shift from the key frame is
+the mean flow of the corners within 1 px of the median flow (targets and clouds that move on
+their own are a minority). Flow against a key frame, not frame to frame, keeps the small errors
+of a still camera from adding up. A new key frame is taken when the shift exceeds ``rekey`` px
+or fewer than half the corners remain.
+
+Until the offset has once exceeded ``still`` px, the camera is *still* and the offset reported
+is exactly zero (the estimate of a still camera is a few hundredths of a pixel of noise); a still
+camera is checked every ``still_every`` frames only. With fewer than ``min_corners`` corners
+agreeing, the shift is *unknown* and the last offset is kept.
+"""
 
 from __future__ import annotations
+
+from dataclasses import dataclass
 
 import cv2
 import numpy as np
 
 
-class MotionEstimator:
-    """Shift (dx, dy) of the scene from the previous frame to this one, in pixels.
+@dataclass(frozen=True)
+class CameraState:
+    """``offset``: a scene point of the first frame appears at ``xy + offset`` now; ``shift``:
+    the change of offset since the previous frame; ``moving``: the camera has moved (else the
+    offset is exactly zero); ``corners``: corners that agreed on this frame's flow (-1: not
+    measured this frame); ``reliable``: the flow was measured (enough corners agreed)."""
 
-    Frames larger than ``max_size`` are downsampled by an integer factor first (the shift is
-    scaled back). A correlation peak weaker than ``min_response`` gives (0, 0).
-    """
+    offset: tuple[float, float]
+    shift: tuple[float, float]
+    moving: bool
+    corners: int
+    reliable: bool
 
-    def __init__(self, max_size: int = 256, min_response: float = 0.05) -> None:
-        self.max_size, self.min_response = max_size, min_response
-        self._prev: np.ndarray | None = None
-        self._window: np.ndarray | None = None
 
-    def update(self, image: np.ndarray) -> tuple[float, float, float]:
-        """(dx, dy, response) of ``image`` relative to the previous call's image."""
-        f = max(1, int(np.ceil(max(image.shape) / self.max_size)))
-        small = image.astype(np.float32, copy=False)
-        if f > 1:
-            small = cv2.resize(small, (image.shape[1] // f, image.shape[0] // f), interpolation=cv2.INTER_AREA)
-        prev, self._prev = self._prev, small
-        if prev is None or prev.shape != small.shape:
-            self._window = cv2.createHanningWindow(small.shape[::-1], cv2.CV_32F)
-            return 0.0, 0.0, 0.0
-        (dx, dy), response = cv2.phaseCorrelate(prev, small, self._window)
-        if response < self.min_response:
-            return 0.0, 0.0, float(response)
-        return float(dx * f), float(dy * f), float(response)
+class CameraMotion:
+    """Streams frames; :meth:`update` returns the :class:`CameraState` of each."""
+
+    def __init__(self, max_side: int = 400, corners: int = 150, still: float = 1.5,
+                 rekey: float = 16.0, still_every: int = 4, min_corners: int = 8,
+                 fb_error: float = 0.5) -> None:
+        self.max_side, self.n_corners, self.still, self.rekey = max_side, corners, still, rekey
+        self.still_every, self.min_corners, self.fb_error = still_every, min_corners, fb_error
+        self._key: np.ndarray | None = None
+        self._key_pts: np.ndarray | None = None
+        self._key_offset = np.zeros(2)
+        self._scale = 1
+        self._range: tuple[float, float] | None = None
+        self._count = 0
+        self.offset = np.zeros(2)   # measured offset (also while still)
+        self.moving = False
+        self._reported = np.zeros(2)
+
+    def _grey(self, image: np.ndarray) -> np.ndarray:
+        """8-bit, downsampled copy for the flow (grey range fixed by the first frame)."""
+        f = image.astype(np.float32, copy=False)
+        if self._range is None:
+            lo, hi = np.percentile(f[::4, ::4], [0.5, 99.5])
+            self._range = (float(lo), float(max(hi, lo + 1e-6)))
+            self._scale = max(1, int(np.ceil(max(image.shape) / self.max_side)))
+        lo, hi = self._range
+        g = cv2.convertScaleAbs(f, alpha=255.0 / (hi - lo), beta=-lo * 255.0 / (hi - lo))
+        s = self._scale
+        if s > 1:
+            g = cv2.resize(g, (image.shape[1] // s, image.shape[0] // s), interpolation=cv2.INTER_AREA)
+        return g
+
+    def _set_key(self, g: np.ndarray) -> None:
+        self._key = g
+        self._key_pts = cv2.goodFeaturesToTrack(g, self.n_corners, 0.01, 7, blockSize=7)
+        self._key_offset = self.offset.copy()
+
+    def update(self, image: np.ndarray) -> CameraState:
+        """Measure this frame's offset (see the module docstring)."""
+        before = self._reported.copy()
+        self._count += 1
+        if self._key is not None and self._key.shape != (image.shape[0] // self._scale,
+                                                         image.shape[1] // self._scale):
+            self._key, self._range = None, None  # new frame size: start again
+        if self._key is None:
+            self._set_key(self._grey(image))
+            return self._state(before, 0, True)
+        if not self.moving and (self._count - 1) % self.still_every:
+            return self._state(before, -1, True)
+        g = self._grey(image)
+        agreed = 0
+        if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
+            win = (15, 15)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._key, g, self._key_pts, None, winSize=win, maxLevel=3)
+            p0, st2, _ = cv2.calcOpticalFlowPyrLK(g, self._key, p1, None, winSize=win, maxLevel=3)
+            back = np.hypot(*(p0 - self._key_pts)[:, 0].T)
+            ok = (st[:, 0] == 1) & (st2[:, 0] == 1) & (back < self.fb_error)
+            d = (p1 - self._key_pts)[:, 0][ok].astype(np.float64)
+            if len(d) >= self.min_corners:
+                med = np.median(d, axis=0)
+                inl = np.hypot(*(d - med).T) < 1.0
+                agreed = int(inl.sum())
+                if agreed >= self.min_corners:
+                    shift = d[inl].mean(axis=0) * self._scale
+                    self.offset = self._key_offset + shift
+                    if not self.moving and np.hypot(*self.offset) > self.still:
+                        self.moving = True
+                    if np.hypot(*shift) > self.rekey or agreed < 0.5 * len(self._key_pts):
+                        self._set_key(g)
+                    return self._state(before, agreed, True)
+        if self.moving:  # lost the key frame's corners: start a new key frame here
+            self._set_key(g)
+        return self._state(before, agreed, False)
+
+    def _state(self, before: np.ndarray, corners: int, reliable: bool) -> CameraState:
+        self._reported = self.offset.copy() if self.moving else np.zeros(2)
+        shift = self._reported - before
+        return CameraState((float(self._reported[0]), float(self._reported[1])),
+                           (float(shift[0]), float(shift[1])), self.moving, corners, reliable)

@@ -17,7 +17,7 @@ from dataclasses import dataclass
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from wfviz import kalman
+from wfviz import kalman, track_score
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 
 
@@ -60,6 +60,15 @@ class TrackEvent:
     message: str
 
 
+def gone_reason(manager: "TrackManager", i: int, xy: np.ndarray) -> str:
+    """Why :meth:`TrackManager._gone` ended track row ``i`` (reported position ``xy``)."""
+    if manager.frame_shape is not None:
+        h, w = manager.frame_shape
+        if not (-0.5 <= xy[0] <= w - 0.5 and -0.5 <= xy[1] <= h - 0.5):
+            return f"its prediction ({xy[0]:.1f}, {xy[1]:.1f}) left the image"
+    return f"its position uncertainty outgrew kalman.coast_limit ({manager.kcfg.coast_limit:g} px)"
+
+
 def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float, float]:
     """Eq. 15 as read in METHODS.md: s(k) = s(k-1) + (s(k-1) - s(k-3)) / 2."""
     s1, s3 = np.asarray(history[-1]), np.asarray(history[-3])
@@ -68,6 +77,8 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
 
 
 HISTORY = 3  # reported positions kept per track: eq. 15 reads s(k-1) and s(k-3)
+MOTION_HISTORY = 32  # measured scene positions kept per track for the motion test (track_score)
+TEST_MEMORY = 0.9  # weight of the past in the running mean of tentative tracks tested per frame
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 
@@ -96,6 +107,12 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         innovation=np.full((n, 2), np.nan),     # NaN: not updated this frame
         clutter=np.zeros(n),                    # mean of the hits' static-clutter labels (_add_clutter)
         clutter_known=np.zeros(n, dtype=np.int64),  # hits with a decided label
+        score=np.zeros(n),                      # sequential test against noise (track_score), nats
+        clutter_score=np.zeros(n),              # test against static clutter: sum of clutter_hits
+        clutter_hits=np.zeros((n, MOTION_HISTORY)),  # its evidence from the last hits, oldest first
+        motion_t=np.zeros((n, MOTION_HISTORY)),  # frames of the measured scene positions
+        motion_xy=np.zeros((n, MOTION_HISTORY, 2)),  # measured positions, camera motion removed
+        motion_ok=np.zeros((n, MOTION_HISTORY), dtype=bool),
         _S_inv=np.zeros((n, 2, 2)),             # inverse innovation covariances (predict)
     )
 
@@ -146,7 +163,7 @@ class TrackManager:
     reported positions and the last three filtered velocities.
     """
 
-    def __init__(self, kcfg: KalmanConfig, tcfg: TrackingConfig) -> None:
+    def __init__(self, kcfg: KalmanConfig, tcfg: TrackingConfig, detection_threshold: float = 4.0) -> None:
         self.kcfg, self.tcfg = kcfg, tcfg
         self.model = kalman.CVModel.make(kcfg.q, kcfg.r)
         self.P0 = kalman.initial_covariance(kcfg.r, kcfg.initial_velocity_std)
@@ -158,6 +175,11 @@ class TrackManager:
         self._pred_arrays: tuple[np.ndarray, ...] = ()
         self.nearest = np.zeros(0, dtype=np.int64)  # per track: nearest detection near it (-1 none)
         self.clutter_rule: ClutterConfig | None = None  # track rule of the static-clutter labels
+        self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
+        self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
+        self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
+        self.thresholds: track_score.Thresholds | None = None  # this frame's (confirm = "sprt")
+        self.detection_threshold = detection_threshold
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -184,6 +206,7 @@ class TrackManager:
         self.x[:, :2] += d
         self.origin += d
         self.history += d
+        self.offset += d
 
     def _push_history(self, rows: np.ndarray, xy: np.ndarray) -> None:
         self.history[rows, :-1] = self.history[rows, 1:]
@@ -281,7 +304,7 @@ class TrackManager:
         centres, halves, confirmed, meeting = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
-        want_near = self.tcfg.meeting_misses or self.clutter_rule is not None
+        want_near = self.tcfg.meeting_misses or self.clutter_rule is not None or self.tcfg.confirm == "sprt"
         if want_near and len(preds) == len(self):  # near: within the gate, at most 2 gate_min
             near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
             dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
@@ -338,6 +361,8 @@ class TrackManager:
                scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None,
                clutter: dict[int, float] | None = None, birth_clutter: np.ndarray | None = None,
                shapes: dict[int, float] | None = None, birth_shapes: np.ndarray | None = None,
+               density: np.ndarray | None = None, birth_density: np.ndarray | None = None,
+               novelty: dict[int, float] | None = None, birth_novelty: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
@@ -387,6 +412,48 @@ class TrackManager:
             self.misses[self.meeting & (self.nearest >= 0)] = 0
         self.misses[missed] += 1
         moved = np.hypot(reported[:, 0] - self.origin[:, 0], reported[:, 1] - self.origin[:, 1])
+        self._push_motion(idx, z)
+        if tc.confirm == "sprt":
+            z, nov = np.full(n, np.nan), np.full(n, np.nan)
+            z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
+            nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
+            confirm, delete, why = self._sequential(measured, density, z, nov)
+        else:
+            confirm, delete, why = self._m_hits(measured, missed, moved, reported, clutter)
+        gone = self._gone(measured, reported) & ~delete
+        for i in np.nonzero(confirm | delete | gone)[0].tolist():
+            if gone[i]:
+                self._event("deleted", i, f"deleted: {gone_reason(self, i, reported[i])} "
+                                          f"({'confirmed' if self.confirmed[i] else 'tentative'}, "
+                                          f"{self.hits[i]} hits)")
+            elif confirm[i]:
+                self.confirmed[i] = True
+                self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why[i]}")
+            else:
+                self._event("deleted", i, why[i] or (
+                    f"deleted after {self.misses[i]} consecutive misses "
+                    f"({'confirmed' if self.confirmed[i] else 'tentative'}, {self.hits[i]} hits)"))
+        delete |= gone
+        if delete.any():
+            keep = ~delete
+            for name in _FIELDS:
+                setattr(self, name, getattr(self, name)[keep])
+        births = np.asarray(births, dtype=np.float64).reshape(-1, 2)
+        tested = int((~self.confirmed).sum()) + len(births)
+        b = self.tested_per_frame
+        self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
+        self._birth(births, birth_scores, birth_clutter, birth_shapes, birth_density, birth_novelty)
+        return self._events
+
+    def _m_hits(self, measured: np.ndarray, missed: np.ndarray, moved: np.ndarray,
+                reported: np.ndarray, clutter: dict[int, float] | None
+                ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """The paper's rule (``tracking.confirm = "hits"``): confirmed at ``confirm_hits`` hits
+        (and the optional tests of significance, shape, motion and static clutter), deleted
+        after ``max_misses`` consecutive misses. Returns (confirm, delete, message per row: the
+        confirmation's reasons, or a deletion's whole message, "" for the usual one)."""
+        tc = self.tcfg
+        n = len(self)
         need = tc.confirm_significance
         mean_score = self.score_sum / np.maximum(self.hits, 1)
         mean_shape = self.shape_sum / np.maximum(self.hits, 1)
@@ -405,29 +472,94 @@ class TrackManager:
             confirm &= ~static & (judged | (not rule.wait))
             static &= self.confirmed & ~delete & (self.clutter > rule.delete_static)
             delete |= static
-        for i in np.nonzero(confirm | delete)[0].tolist():
+        why = [""] * n
+        for i in np.nonzero(confirm | static)[0].tolist():
             if static[i]:
-                self._event("deleted", i, f"deleted as static clutter (fixed in the scene among "
-                                          f"many detections: mean static label {self.clutter[i]:.2f})")
-            elif confirm[i]:
-                self.confirmed[i] = True
-                why = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
-                if need > 0 and mean_score[i] < need:
-                    why += f" (a mover: {moved[i]:.1f} px in a straight line since birth)"
-                why += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
-                why += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
-                self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why}")
-            else:
-                self._event("deleted", i, f"deleted after {self.misses[i]} consecutive misses "
-                                          f"({'confirmed' if self.confirmed[i] else 'tentative'}, "
-                                          f"{self.hits[i]} hits)")
-        if delete.any():
-            keep = ~delete
-            for name in _FIELDS:
-                setattr(self, name, getattr(self, name)[keep])
-        self._birth(np.asarray(births, dtype=np.float64).reshape(-1, 2), birth_scores, birth_clutter,
-                    birth_shapes)
-        return self._events
+                why[i] = (f"deleted as static clutter (fixed in the scene among many detections: "
+                          f"mean static label {self.clutter[i]:.2f})")
+                confirm[i] = False
+                continue
+            w = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
+            if need > 0 and mean_score[i] < need:
+                w += f" (a mover: {moved[i]:.1f} px in a straight line since birth)"
+            w += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
+            w += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
+            why[i] = w
+        return confirm, delete, why
+
+    def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
+                    nov: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """The two sequential tests of :mod:`wfviz.track_score` (``tracking.confirm = "sprt"``):
+        ``score`` against noise (hits and misses, where the hits lie in the gate) and
+        ``clutter_score`` against static clutter (how significant and how new the hits are).
+        ``density``: false detections per pixel at each track; ``z``, ``nov``: each hit's
+        significance and novelty. A track is confirmed when both reach the confirmation level."""
+        tc = self.tcfg
+        n = len(self)
+        th = track_score.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
+                                    tc.beta, tc.p_lost)
+        self.thresholds = th
+        halves = self._pred_arrays[1] if len(self._pred_arrays) and len(self._pred_arrays[1]) == n \
+            else np.full((n, 2), self.kcfg.gate_max)
+        lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
+        p_fa = track_score.gate_false_alarm(lam, halves)
+        change = track_score.score_change(measured, tc.p_detect, p_fa)
+        clutter = np.zeros(n)
+        m = np.nonzero(measured)[0]
+        if m.size:
+            change[m] += track_score.position_score(self.innovation[m], self._S_inv[m], halves[m])
+            change[m] += track_score.amplitude_score(z[m], self.detection_threshold)
+            clutter[m] = track_score.change_evidence(nov[m], self.detection_threshold,
+                                                     tc.static_change_rate, tc.target_change_rate)
+        # a meeting track takes no measurement: no evidence while a detection lies near its
+        # extrapolation, a miss when none does (it has lost its target)
+        change[self.meeting & ~measured & (self.nearest >= 0)] = 0.0
+        self.score += change
+        if m.size:  # a window of the last MOTION_HISTORY hits: old evidence does not linger
+            self.clutter_hits[m, :-1] = self.clutter_hits[m, 1:]
+            self.clutter_hits[m, -1] = clutter[m]
+            self.clutter_score[m] = self.clutter_hits[m].sum(axis=1)
+        conf = self.confirmed
+        self.score[conf] = np.minimum(self.score[conf], th.confirm)
+        confirm = (measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm))
+        if tc.require_motion and confirm.any():
+            r = np.nonzero(confirm)[0]
+            t2 = track_score.motion_statistic(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
+                                              tc.position_noise)
+            confirm[r[t2 < th.motion]] = False
+        drop = ~conf & (self.score <= th.drop)
+        lost = conf & (self.score <= th.delete)
+        why = [""] * n
+        for i in np.nonzero(confirm)[0].tolist():
+            why[i] = (f": persistence {self.score[i]:.1f} and not clutter {self.clutter_score[i]:.1f} "
+                      f">= {th.confirm:.1f}")
+        for i in np.nonzero(lost)[0].tolist():
+            why[i] = (f"deleted: score {self.score[i]:.1f} fell {th.confirm - self.score[i]:.1f} below "
+                      f"confirmation after {self.misses[i]} consecutive misses ({self.hits[i]} hits)")
+        return confirm, drop | lost, why
+
+    def _gone(self, measured: np.ndarray, reported: np.ndarray) -> np.ndarray:
+        """Coasting tracks (meeting mode included) whose position left the image, or whose
+        position uncertainty (``gate_sigma`` standard deviations) outgrew ``kalman.coast_limit``."""
+        n = len(self)
+        out = np.zeros(n, dtype=bool)
+        if self.frame_shape is not None:
+            h, w = self.frame_shape
+            out = ((reported[:, 0] < -0.5) | (reported[:, 0] > w - 0.5)
+                   | (reported[:, 1] < -0.5) | (reported[:, 1] > h - 0.5))
+        spread = self.kcfg.gate_sigma * np.sqrt(np.maximum(self.P[:, 0, 0], self.P[:, 1, 1]))
+        return ~measured & (out | (spread > self.kcfg.coast_limit))
+
+    def _push_motion(self, rows: np.ndarray, z: np.ndarray) -> None:
+        """Record the measured scene positions (image position minus the camera offset)."""
+        if not rows.size:
+            return
+        for name in ("motion_t", "motion_xy", "motion_ok"):
+            a = getattr(self, name)
+            a[rows, :-1] = a[rows, 1:]
+        self.motion_t[rows, -1] = self._frame
+        self.motion_xy[rows, -1] = z - self.offset
+        self.motion_ok[rows, -1] = True
 
     def _mover(self, reported: np.ndarray, moved: np.ndarray) -> np.ndarray:
         """Tracks that count as movers under ``tracking.confirm_moving`` (not in the paper):
@@ -453,7 +585,8 @@ class TrackManager:
             self.clutter[rows] = (1 - a) * self.clutter[rows] + a * labels
 
     def _birth(self, births: np.ndarray, birth_scores: np.ndarray | None,
-               birth_clutter: np.ndarray | None = None, birth_shapes: np.ndarray | None = None) -> None:
+               birth_clutter: np.ndarray | None = None, birth_shapes: np.ndarray | None = None,
+               birth_density: np.ndarray | None = None, birth_novelty: np.ndarray | None = None) -> None:
         k = len(births)
         if not k:
             return
@@ -470,6 +603,24 @@ class TrackManager:
         new["birth_image"][:] = births
         new["history"][:, -1] = births
         new["history_len"][:] = 1
+        new["motion_t"][:, -1] = self._frame
+        new["motion_xy"][:, -1] = births - self.offset
+        new["motion_ok"][:, -1] = True
+        if self.tcfg.confirm == "sprt":  # the birth detection is a hit in the next frame's first gate
+            S0 = kalman.innovation_covariance(kalman.predict(np.zeros((1, 4)), self.P0[None], self.model)[1],
+                                              self.model)
+            half = self._gate_half_sizes(S0)
+            lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
+            p_fa = track_score.gate_false_alarm(lam, np.repeat(half, k, axis=0))
+            new["score"][:] = track_score.score_change(np.ones(k, dtype=bool), self.tcfg.p_detect, p_fa)
+            if birth_scores is not None:
+                zb = np.asarray(birth_scores, dtype=np.float64)
+                new["score"] += track_score.amplitude_score(zb, self.detection_threshold)
+                if birth_novelty is not None:
+                    new["clutter_hits"][:, -1] = track_score.change_evidence(
+                        np.asarray(birth_novelty, dtype=np.float64), self.detection_threshold,
+                        self.tcfg.static_change_rate, self.tcfg.target_change_rate)
+                    new["clutter_score"][:] = new["clutter_hits"][:, -1]
         for name in _FIELDS:
             setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
         if birth_clutter is not None:

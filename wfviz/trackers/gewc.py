@@ -6,16 +6,18 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wfviz.background import suppress_background
+from wfviz.background import TemporalBackground, change as scene_change, suppress_background
 from wfviz.centroid import measure_many
-from wfviz.clutter import StaticClutter
+from wfviz.clutter import Novelty, StaticClutter
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, score_detections
+from wfviz.detection import Detections, detect, sample_at, score_detections
 from wfviz.frames import Frame
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
-from wfviz.registration import MotionEstimator
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
+from wfviz.noise import NoiseEstimate, NoiseModel
+from wfviz.registration import CameraMotion, CameraState
+from wfviz.track_score import DetectionDensity
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
 
@@ -45,8 +47,10 @@ class GEWCResult(FrameResult):
     innovations: dict[int, np.ndarray]
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
-    camera_shift: tuple[float, float] | None  # (dx, dy) when tracking.compensate_motion
+    camera_shift: tuple[float, float] | None  # (dx, dy) the tracks were moved by (None: not compensated)
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
+    noise: NoiseEstimate | None = None  # detection.mode = "cfar"
+    camera: CameraState | None = None
 
 
 class GEWCTracker:
@@ -57,17 +61,23 @@ class GEWCTracker:
     def __init__(self, config: GEWCConfig | None = None) -> None:
         self.config = config or GEWCConfig()
         c = self.config
-        self._significance = c.detection.significance or c.tracking.confirm_significance > 0
-        self.manager = TrackManager(c.kalman, c.tracking)
+        self._significance = c.detection.mode != "cfar" and (c.detection.significance
+                                                             or c.tracking.confirm_significance > 0)
+        self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma)
         self.horizon = HorizonTracker(c.horizon)
         self.bad = BadPixels(c.defects)
-        self.motion = MotionEstimator() if c.tracking.compensate_motion else None
+        self.motion = CameraMotion() if c.tracking.compensate_motion != "off" else None
+        self.noise = NoiseModel(c.noise.tile, c.noise.smoothing) if c.detection.mode == "cfar" else None
+        self.density = DetectionDensity(c.noise.tile)
+        self.temporal = TemporalBackground()
+        self.change_noise = NoiseModel(c.noise.tile, c.noise.smoothing)
         self.imaging = ImagingMask(c.circle)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
         if self.clutter is not None:
             self.manager.clutter_rule = c.clutter
         self._offset = np.zeros(2)  # accumulated camera shift (scene -> image)
         self._region: np.ndarray | None = None
+        self._valid: np.ndarray | None = None
         self._zones: list[np.ndarray] | None = None
 
     @property
@@ -84,29 +94,50 @@ class GEWCTracker:
         raw, img = img, self.bad.clean(img)
         lap("defects")
         mask, mask_changed = self.imaging.update(img)
-        valid = ~mask
+        if mask_changed or self._valid is None:
+            self._valid = ~mask
+        valid = self._valid
         lap("mask")
         horizon, horizon_updated = self.horizon.update(img, valid)
         if horizon_updated or mask_changed or self._region is None:
             self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
                                                      c.horizon.exclude_ground, self.circle is not None)
         lap("horizon")
+        camera = shift = None
+        if self.motion is not None:
+            camera = self.motion.update(img)
+            if camera.moving or c.tracking.compensate_motion == "on":
+                shift = camera.shift
+                self._offset += shift
+                self.manager.shift(*shift)
+        lap("camera")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
-        dets = detect(suppressed, self._region, c.detection, self._zones)
+        noise = None
+        if self.noise is not None:
+            moved = shift is not None and float(np.hypot(*shift)) > c.noise.tile / 4
+            noise = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
+            lap("noise")
+        dets = detect(suppressed, self._region, c.detection, self._zones, noise)
         dets = score_detections(dets, img, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
-        shift = None
-        if self.motion is not None:
-            dx, dy, _ = self.motion.update(img)
-            shift = (dx, dy)
-            self._offset += shift
-            self.manager.shift(dx, dy)
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, self._offset,
             dets.peak / np.maximum(dets.thresholds(), 1e-12))
+        # what is new in the scene: the raw frame's residual (defects not yet replaced, so that a
+        # pixel flagged during the clip does not look like a change) against its past
+        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
+                                                                          c.suppression.method)
+        background = self.temporal.update(raw_residual, self._offset)
+        change = None
+        nov = np.full(len(dets), np.nan)
+        if background is not None:
+            change = scene_change(raw_residual, background)
+            known = self._region & np.isfinite(change)
+            cn = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
+            nov = sample_at(cn.significance(change), dets.xy)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
@@ -120,6 +151,9 @@ class GEWCTracker:
         used[list(pairs.values())] = True
         born = ~used & ~claimed
         sig, blob = dets.significance, dets.blobness
+        self.density.update(dets.xy[~claimed], valid)
+        pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
+        self.manager.frame_shape = img.shape
         events = self.manager.update(
             {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
             scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
@@ -127,7 +161,9 @@ class GEWCTracker:
             shapes=None if blob is None else {i: float(blob[m.detection]) for i, m in meas.items()},
             birth_shapes=None if blob is None else blob[born],
             clutter=None if labels is None else self._track_clutter(labels, meas),
-            birth_clutter=None if labels is None else labels[born])
+            birth_clutter=None if labels is None else labels[born],
+            density=self.density.at(pred_xy), birth_density=self.density.at(dets.xy[born]),
+            novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born])
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -137,7 +173,7 @@ class GEWCTracker:
             horizon_updated=horizon_updated, suppressed=suppressed,
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
             bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed, camera_shift=shift,
-            clutter=labels,
+            clutter=labels, noise=noise, camera=camera,
         )
 
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:

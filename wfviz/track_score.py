@@ -1,0 +1,198 @@
+"""Sequential confirmation and deletion of tracks (not in the GEWC paper, which confirms a track
+after m = 6 hits; that rule stays selectable as ``tracking.confirm = "hits"``).
+
+**Evidence against noise.** Each frame a track either has a detection in its gate (a hit) or
+not (a miss). A target gives a hit with probability ``P_D``; false detections of local density
+λ per pixel fall into a gate of area A with probability ``p_fa = 1 - exp(-λ A)``. Wald's
+sequential probability ratio test on these outcomes (A. Wald, *Sequential Analysis*, 1947;
+for track management S. Blackman and R. Popoli, *Design and Analysis of Modern Tracking
+Systems*, 1999, §6.2) adds to a track's score
+
+    L += ln(P_D / p_fa)                  on a hit,
+    L += ln((1 - P_D) / (1 - p_fa))      on a miss,
+
+confirms at ``L >= ln((1 - β) / α)`` and drops a tentative track at ``L <= ln(β / (1 - α))``.
+α is the chance that a track started by false detections gets confirmed, β the chance that a
+target's tentative track is dropped. α follows from the one number a user sets, the rate of
+false confirmed tracks per 1000 frames F, and the measured number of tentative tracks tested
+per frame b: ``α = F / (1000 b)`` (each test is a chance to confirm a false track). A confirmed
+track's score is capped at the confirmation level; it is deleted when it falls ``ln(1 / p_lost)``
+below it (with P_D = 0.9 and a clean gate: after 3 consecutive misses, as in the paper).
+
+**Evidence against static clutter.** Stars, lamps, roof corners, hot spots of the ground and
+fixed-pattern noise are persistent: they pass any hit count. They stay put in the scene, a
+target moves. :func:`motion_statistic` tests a track's recent scene positions (camera motion
+removed) for a non-zero velocity: least squares of x(t) = x0 + v t against x(t) = x0, with the
+position noise estimated from the track's own residuals (at least ``sigma_floor`` px). Under
+"stationary", T² = |v̂|² / var(v̂) is about χ² with 2 degrees of freedom, so ``T² >= -2 ln α``
+rejects it at the same rate α.
+"""
+
+from __future__ import annotations
+
+import math
+from dataclasses import dataclass
+
+import numpy as np
+
+EVIDENCE_CAP = 5.0  # most one hit's significance or change may add to or take from a score (nats)
+
+
+@dataclass(frozen=True)
+class Thresholds:
+    """Score levels of the sequential test (natural log units)."""
+
+    confirm: float
+    drop: float
+    delete: float  # below ``confirm``: a confirmed track at this score is deleted
+    alpha: float
+    motion: float  # T² a stationary track exceeds with probability alpha
+
+
+def thresholds(false_per_1000: float, tested_per_frame: float, beta: float, p_lost: float) -> Thresholds:
+    """Wald's levels for the rate of false confirmed tracks ``false_per_1000`` per 1000 frames
+    when ``tested_per_frame`` tentative tracks are tested each frame."""
+    alpha = min(false_per_1000 / (1000.0 * max(tested_per_frame, 1.0)), 0.5)
+    confirm = math.log((1.0 - beta) / alpha)
+    return Thresholds(confirm=confirm, drop=math.log(beta / (1.0 - alpha)),
+                      delete=confirm + math.log(p_lost), alpha=alpha, motion=-2.0 * math.log(alpha))
+
+
+def gate_false_alarm(density: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """Probability that false detections of ``density`` (per pixel) put one in each gate
+    (half sizes (N, 2) in px, the gate covering (2 w + 1)(2 h + 1) pixels)."""
+    area = (2.0 * half[:, 0] + 1.0) * (2.0 * half[:, 1] + 1.0)
+    return -np.expm1(-np.asarray(density, dtype=np.float64) * area)
+
+
+def score_change(hit: np.ndarray, p_detect: float, p_fa: np.ndarray) -> np.ndarray:
+    """The score each track adds this frame: a hit or a miss (see the module docstring)."""
+    p = np.clip(p_fa, 1e-12, 1.0 - 1e-9)
+    return np.where(hit, np.log(p_detect / p), np.log((1.0 - p_detect) / (1.0 - p)))
+
+
+def position_score(innovation: np.ndarray, S_inv: np.ndarray, half: np.ndarray) -> np.ndarray:
+    """ln of the likelihood ratio of where a hit lies in its gate: the Gaussian innovation density
+    N(ν; 0, S) of a target against the uniform density 1 / A of a false detection anywhere in the
+    gate (A: the gate's area). Near the prediction it adds, at the gate's edge it takes away."""
+    area = (2.0 * half[:, 0] + 1.0) * (2.0 * half[:, 1] + 1.0)
+    d2 = np.einsum("ni,nij,nj->n", innovation, S_inv, innovation)
+    det = np.maximum(np.linalg.det(S_inv), 1e-300)
+    return np.log(area) + 0.5 * np.log(det) - np.log(2.0 * np.pi) - 0.5 * d2
+
+
+def amplitude_score(z: np.ndarray, k: float, z_max: float = 1000.0, cap: float = EVIDENCE_CAP) -> np.ndarray:
+    """ln of the likelihood ratio of a hit's significance z (local noise σ, :mod:`wfviz.noise`):
+    a target's significance is taken uniform in ln z between the detection threshold ``k`` and
+    ``z_max``; noise that crossed the threshold is Gaussian beyond it, density φ(z) / Q(k).
+    Bounded to ±``cap`` per hit (real noise tails are heavier than the model's). NaN: 0."""
+    z = np.asarray(z, dtype=np.float64)
+    ok = np.isfinite(z) & (z > 0)
+    zz = np.where(ok, np.maximum(z, k), k)
+    log_f1 = -np.log(zz) - math.log(math.log(max(z_max / k, 1.0 + 1e-9)))
+    log_f0 = -0.5 * zz * zz - 0.5 * math.log(2 * math.pi) - math.log(max(_q(k), 1e-300))
+    return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
+
+
+def change_score(z_change: np.ndarray, z: np.ndarray, cap: float = EVIDENCE_CAP) -> np.ndarray:
+    """ln of the likelihood ratio of a hit's change significance (what is new at its place in the
+    scene, :class:`wfviz.background.TemporalBackground`, in its own noise σ) against static
+    clutter. Static clutter: the change is noise, N(0, 1). A target: the change is N(μ, 1) with μ
+    anywhere between 0 (it has not moved off its earlier image) and the hit's significance ``z``
+    (it has moved right away), uniformly. Bounded to ±``cap`` per hit; NaN: 0."""
+    zc = np.asarray(z_change, dtype=np.float64)
+    zs = np.maximum(np.asarray(z, dtype=np.float64), 1e-3)
+    ok = np.isfinite(zc) & np.isfinite(zs)
+    zc = np.where(ok, np.clip(zc, -8.0, 8.0 + zs), 0.0)
+    from scipy.special import log_ndtr
+
+    # ln[(Φ(zc) - Φ(zc - zs)) / zs] - ln φ(zc), with the difference of Φ in logs for stability
+    a, b = log_ndtr(zc), log_ndtr(zc - zs)
+    log_num = a + np.log1p(-np.exp(np.minimum(b - a, -1e-12))) - np.log(zs)
+    log_phi = -0.5 * zc * zc - 0.5 * math.log(2 * math.pi)
+    return np.where(ok, np.clip(log_num - log_phi, -cap, cap), 0.0)
+
+
+def change_evidence(z_change: np.ndarray, threshold: float, q_static: float, q_target: float) -> np.ndarray:
+    """ln of the likelihood ratio that a hit's change significance gives against static clutter,
+    in Wald's form for a yes/no observation: the hit has *changed* when its change significance
+    exceeds ``threshold`` (it is new at its place in the scene). Static clutter changes in a
+    fraction ``q_static`` of its hits (noise, a video codec's refresh), a target in ``q_target``
+    (a target that has moved off its earlier image always; a hovering one rarely). NaN: 0."""
+    zc = np.asarray(z_change, dtype=np.float64)
+    yes = math.log(q_target / q_static)
+    no = math.log((1.0 - q_target) / (1.0 - q_static))
+    return np.where(np.isfinite(zc), np.where(zc > threshold, yes, no), 0.0)
+
+
+def _q(k: float) -> float:
+    """Upper tail probability of a unit Gaussian."""
+    return 0.5 * math.erfc(k / math.sqrt(2.0))
+
+
+def motion_statistic(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> np.ndarray:
+    """T² for a non-zero velocity of each track, from its positions ``xy`` (N, K, 2) at frames
+    ``t`` (N, K), where ``ok`` (N, K); 0 with fewer than 3 positions."""
+    w = ok.astype(np.float64)
+    n = w.sum(axis=1)
+    safe = np.maximum(n, 1.0)
+    tm = (w * t).sum(axis=1) / safe
+    dt = np.where(ok, t - tm[:, None], 0.0)
+    sxx = (dt * dt).sum(axis=1)
+    pts = np.where(ok[..., None], xy, 0.0)
+    mean = pts.sum(axis=1) / safe[:, None]
+    dev = np.where(ok[..., None], xy - mean[:, None, :], 0.0)
+    v = (dt[..., None] * dev).sum(axis=1) / np.maximum(sxx, 1e-12)[:, None]
+    resid = dev - dt[..., None] * v[:, None, :]
+    dof = np.maximum(2.0 * n - 4.0, 1.0)
+    var = np.maximum((resid * resid).sum(axis=(1, 2)) / dof, sigma_floor ** 2)
+    t2 = (v * v).sum(axis=1) * sxx / var
+    return np.where(n >= 3, t2, 0.0)
+
+
+class DetectionDensity:
+    """Local density of false detections per pixel, on a grid of ``tile`` px tiles: this
+    frame's detections not taken by a confirmed track, summed over the 3 × 3 tiles around
+    each tile, blended over time (weight ``memory`` on the past) and divided by those tiles'
+    valid pixels. ``prior`` detections per frame are added to every neighbourhood, so that
+    a clean patch of sky is not taken for one where a false detection is impossible."""
+
+    def __init__(self, tile: int = 32, memory: float = 0.8, prior: float = 0.1) -> None:
+        self.tile, self.memory, self.prior = tile, memory, prior
+        self.grid: np.ndarray | None = None
+        self._area: tuple[np.ndarray, np.ndarray] | None = None  # (valid mask, its 3 x 3 tile areas)
+
+    def update(self, xy: np.ndarray, valid: np.ndarray) -> None:
+        """Add this frame's false-detection candidates ``xy`` (N, 2) over the ``valid`` pixels."""
+        h, w = valid.shape
+        t = self.tile
+        ny, nx = -(-h // t), -(-w // t)
+        counts = np.zeros((ny, nx))
+        if len(xy):
+            r = np.clip((xy[:, 1] // t).astype(np.int64), 0, ny - 1)
+            c = np.clip((xy[:, 0] // t).astype(np.int64), 0, nx - 1)
+            np.add.at(counts, (r, c), 1.0)
+        if self._area is None or self._area[0] is not valid:
+            pad = np.zeros((ny * t, nx * t))
+            pad[:h, :w] = valid
+            self._area = (valid, _box3(pad.reshape(ny, t, nx, t).sum(axis=(1, 3))))
+        density = (_box3(counts) + self.prior) / np.maximum(self._area[1], 1.0)
+        if self.grid is None or self.grid.shape != density.shape:
+            self.grid = density
+        else:
+            self.grid = self.memory * self.grid + (1.0 - self.memory) * density
+
+    def at(self, xy: np.ndarray) -> np.ndarray:
+        """Density at the points ``xy`` (N, 2) (their tile's value)."""
+        if self.grid is None or not len(xy):
+            return np.zeros(len(xy))
+        ny, nx = self.grid.shape
+        r = np.clip((np.asarray(xy)[:, 1] // self.tile).astype(np.int64), 0, ny - 1)
+        c = np.clip((np.asarray(xy)[:, 0] // self.tile).astype(np.int64), 0, nx - 1)
+        return self.grid[r, c]
+
+
+def _box3(a: np.ndarray) -> np.ndarray:
+    """Sum over each cell's 3 × 3 neighbourhood (zero outside the grid)."""
+    p = np.pad(a, 1)
+    return sum(p[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))
