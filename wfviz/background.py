@@ -30,7 +30,7 @@ class TemporalBackground:
     ``residual - background`` keeps what is new or has moved and drops what stays put (stars,
     lamps, buildings, textured ground, fixed-pattern noise, hot spots).
 
-    A still camera (no ``shift`` since the start) keeps a running mean of the residual (the
+    A still camera (``moving`` False) keeps a running mean of the residual (the
     first ``memory`` frames equally weighted, then exponentially with weight 1 / ``memory``)
     delayed by ``lag`` frames: fixed-pattern noise averages out of it, and a target moving more
     than its own size in ``lag`` frames is not in it. A moving camera uses the single image
@@ -47,16 +47,18 @@ class TemporalBackground:
         self._count = 0
         self._still = True
 
-    def update(self, residual: np.ndarray, offset: np.ndarray | tuple[float, float]
-               ) -> np.ndarray | None:
-        """This frame's background (float32, or None on the first frame); then remembers it."""
+    def update(self, residual: np.ndarray, offset: np.ndarray | tuple[float, float],
+               moving: bool = False) -> np.ndarray | None:
+        """This frame's background (float32, or None on the first frame); then remembers it.
+        ``offset``: the camera's (:class:`wfviz.registration.CameraState`); ``moving``: it has
+        moved (from then on the moving-camera background is used)."""
         r = np.asarray(residual, dtype=np.float32)
         off = np.asarray(offset, dtype=np.float64)
         ring = self._ring
         if ring and ring[-1][0].shape != r.shape:
             ring.clear()
             self._mean, self._count = None, 0
-        if np.any(off != 0.0):
+        if moving:
             self._still = False
         background = None
         if ring:
@@ -66,10 +68,10 @@ class TemporalBackground:
                     self._count += 1
                     a = max(1.0 / self._count, 1.0 / self.memory)
                     self._mean = old.copy() if self._mean is None else (1 - a) * self._mean + a * old
-                background = self._mean if self._mean is not None else ring[0][0]
+                background = cv2.GaussianBlur(self._mean if self._mean is not None else ring[0][0], (0, 0), 1.0)
             else:
                 old, then = ring[0]
-                background = cv2.dilate(_shifted(old, off - then), np.ones((3, 3), np.uint8))
+                background = _moved(cv2.GaussianBlur(old, (0, 0), 1.0), off - then)
         ring.append((r.copy() if r is residual else r, off.copy()))
         return background
 
@@ -90,6 +92,15 @@ def change(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -
     den = float(np.dot(bt, bt))
     g = float(np.dot(rt, bt)) / den if den > 0 else 1.0
     return r - np.float32(g) * background
+
+
+def _moved(image: np.ndarray, d: np.ndarray) -> np.ndarray:
+    """``image`` moved by ``d`` (x, y) with bilinear interpolation; uncovered pixels are NaN."""
+    h, w = image.shape
+    m = np.float32([[1, 0, d[0]], [0, 1, d[1]]])
+    out = cv2.warpAffine(image, m, (w, h), flags=cv2.INTER_LINEAR, borderMode=cv2.BORDER_CONSTANT,
+                         borderValue=np.nan)
+    return out
 
 
 def _shifted(image: np.ndarray, d: np.ndarray) -> np.ndarray:

@@ -137,6 +137,7 @@ class TrackingConfig:
     p_lost: float = field(default=0.001, metadata=_range(1e-9, 0.5))
     position_noise: float = field(default=0.2, metadata=_range(0.001, 10.0))
     require_motion: bool = True
+    min_motion: float = field(default=1.0, metadata=_range(0.0, None))  # px, net (track_score)
     static_change_rate: float = field(default=0.05, metadata=_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.5, metadata=_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=_range(1, None))
@@ -155,9 +156,9 @@ class TrackingConfig:
     meeting_overlap: bool = False   # meet only when the two gates overlap (not in the paper)
     meeting_misses: bool = False    # meeting mode: no detection near the extrapolation = a miss
     trail_length: int = field(default=60, metadata=_range(2, None))
-    # camera motion (wfviz.registration): "auto" measures it and moves the tracks once the camera
-    # is seen to move; "on" moves them by every measured shift; "off" does not measure it
-    compensate_motion: str = field(default="auto", metadata={"choices": ("auto", "on", "off")})
+    # camera motion (wfviz.registration): "auto" measures it every frame and moves the tracks
+    # with the scene; "off" assumes a still camera
+    compensate_motion: str = field(default="auto", metadata={"choices": ("auto", "off")})
 
 
 @dataclass(frozen=True)
@@ -272,7 +273,7 @@ class FusionConfig:
         if getattr(t, "confirm_moving", 0.0) > 0:
             raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (without "
                               "camera-motion compensation it cannot tell scene from image motion); keep 0")
-        if getattr(t, "compensate_motion", "off") == "on":
+        if getattr(t, "compensate_motion", "off") == "on":  # never: "auto" | "off" only
             raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
         if getattr(t, "meeting_misses", False):
             raise ConfigError("tracking.meeting_misses is not supported by the fusion tracker "

@@ -13,10 +13,10 @@ their own are a minority). Flow against a key frame, not frame to frame, keeps t
 of a still camera from adding up. A new key frame is taken when the shift exceeds ``rekey`` px
 or fewer than half the corners remain.
 
-Until the offset has once exceeded ``still`` px, the camera is *still* and the offset reported
-is exactly zero (the estimate of a still camera is a few hundredths of a pixel of noise); a still
-camera is checked every ``still_every`` frames only. With fewer than ``min_corners`` corners
-agreeing, the shift is *unknown* and the last offset is kept.
+Until the offset has once exceeded ``still`` px the camera counts as *still* (the estimate of
+a still camera wanders by a few hundredths of a pixel); stages that treat the two cases
+differently read ``moving``. With fewer than ``min_corners`` corners agreeing, the shift is
+*unknown* and the last offset is kept.
 """
 
 from __future__ import annotations
@@ -30,9 +30,9 @@ import numpy as np
 @dataclass(frozen=True)
 class CameraState:
     """``offset``: a scene point of the first frame appears at ``xy + offset`` now; ``shift``:
-    the change of offset since the previous frame; ``moving``: the camera has moved (else the
-    offset is exactly zero); ``corners``: corners that agreed on this frame's flow (-1: not
-    measured this frame); ``reliable``: the flow was measured (enough corners agreed)."""
+    the change of offset since the previous frame; ``moving``: the camera has moved more than
+    ``still`` px since the first frame; ``corners``: corners that agreed on this frame's flow;
+    ``reliable``: the flow was measured (enough corners agreed)."""
 
     offset: tuple[float, float]
     shift: tuple[float, float]
@@ -45,19 +45,16 @@ class CameraMotion:
     """Streams frames; :meth:`update` returns the :class:`CameraState` of each."""
 
     def __init__(self, max_side: int = 400, corners: int = 150, still: float = 1.5,
-                 rekey: float = 16.0, still_every: int = 4, min_corners: int = 8,
-                 fb_error: float = 0.5) -> None:
+                 rekey: float = 16.0, min_corners: int = 8, fb_error: float = 0.5) -> None:
         self.max_side, self.n_corners, self.still, self.rekey = max_side, corners, still, rekey
-        self.still_every, self.min_corners, self.fb_error = still_every, min_corners, fb_error
+        self.min_corners, self.fb_error = min_corners, fb_error
         self._key: np.ndarray | None = None
         self._key_pts: np.ndarray | None = None
         self._key_offset = np.zeros(2)
         self._scale = 1
         self._range: tuple[float, float] | None = None
-        self._count = 0
-        self.offset = np.zeros(2)   # measured offset (also while still)
+        self.offset = np.zeros(2)
         self.moving = False
-        self._reported = np.zeros(2)
 
     def _grey(self, image: np.ndarray) -> np.ndarray:
         """8-bit, downsampled copy for the flow (grey range fixed by the first frame)."""
@@ -80,16 +77,13 @@ class CameraMotion:
 
     def update(self, image: np.ndarray) -> CameraState:
         """Measure this frame's offset (see the module docstring)."""
-        before = self._reported.copy()
-        self._count += 1
+        before = self.offset.copy()
         if self._key is not None and self._key.shape != (image.shape[0] // self._scale,
                                                          image.shape[1] // self._scale):
             self._key, self._range = None, None  # new frame size: start again
         if self._key is None:
             self._set_key(self._grey(image))
             return self._state(before, 0, True)
-        if not self.moving and (self._count - 1) % self.still_every:
-            return self._state(before, -1, True)
         g = self._grey(image)
         agreed = 0
         if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
@@ -116,7 +110,6 @@ class CameraMotion:
         return self._state(before, agreed, False)
 
     def _state(self, before: np.ndarray, corners: int, reliable: bool) -> CameraState:
-        self._reported = self.offset.copy() if self.moving else np.zeros(2)
-        shift = self._reported - before
-        return CameraState((float(self._reported[0]), float(self._reported[1])),
+        shift = self.offset - before
+        return CameraState((float(self.offset[0]), float(self.offset[1])),
                            (float(shift[0]), float(shift[1])), self.moving, corners, reliable)

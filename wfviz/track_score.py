@@ -130,6 +130,21 @@ def _q(k: float) -> float:
     return 0.5 * math.erfc(k / math.sqrt(2.0))
 
 
+def net_displacement(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """How far each track has moved across its recorded positions, robustly: the distance from
+    the median of its oldest third to the median of its newest third (a centroid that hops
+    between parts of a blob and back, or a single jump, moves neither median far). 0 with fewer
+    than 6 positions."""
+    n = len(t)
+    out = np.zeros(n)
+    for i in range(n):
+        p = xy[i][ok[i]][np.argsort(t[i][ok[i]])]
+        k = len(p) // 3
+        if k >= 2:
+            out[i] = float(np.hypot(*(np.median(p[-k:], axis=0) - np.median(p[:k], axis=0))))
+    return out
+
+
 def motion_statistic(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> np.ndarray:
     """T² for a non-zero velocity of each track, from its positions ``xy`` (N, K, 2) at frames
     ``t`` (N, K), where ``ok`` (N, K); 0 with fewer than 3 positions."""

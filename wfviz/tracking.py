@@ -526,7 +526,8 @@ class TrackManager:
             r = np.nonzero(confirm)[0]
             t2 = track_score.motion_statistic(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
                                               tc.position_noise)
-            confirm[r[t2 < th.motion]] = False
+            moved = track_score.net_displacement(self.motion_t[r], self.motion_xy[r], self.motion_ok[r])
+            confirm[r[(t2 < th.motion) | (moved < tc.min_motion)]] = False
         drop = ~conf & (self.score <= th.drop)
         lost = conf & (self.score <= th.delete)
         why = [""] * n

@@ -4,6 +4,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
+import cv2
 import numpy as np
 
 from wfviz.background import TemporalBackground, change as scene_change, suppress_background
@@ -106,10 +107,9 @@ class GEWCTracker:
         camera = shift = None
         if self.motion is not None:
             camera = self.motion.update(img)
-            if camera.moving or c.tracking.compensate_motion == "on":
-                shift = camera.shift
-                self._offset += shift
-                self.manager.shift(*shift)
+            shift = camera.shift
+            self._offset = np.asarray(camera.offset, dtype=np.float64)
+            self.manager.shift(*shift)
         lap("camera")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
@@ -130,14 +130,17 @@ class GEWCTracker:
         # pixel flagged during the clip does not look like a change) against its past
         raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
                                                                           c.suppression.method)
-        background = self.temporal.update(raw_residual, self._offset)
+        background = self.temporal.update(raw_residual, self._offset, camera is not None and camera.moving)
         change = None
         nov = np.full(len(dets), np.nan)
         if background is not None:
-            change = scene_change(raw_residual, background)
+            now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
+            change = scene_change(now, background)
             known = self._region & np.isfinite(change)
             cn = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
-            nov = sample_at(cn.significance(change), dets.xy)
+            # in units of the change's own spread, from 0: static structure is unchanged whatever
+            # the change image's typical level (a moving camera's dilated background makes it < 0)
+            nov = sample_at(change / cn.sigma, dets.xy)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
