@@ -68,10 +68,10 @@ class TemporalBackground:
                     self._count += 1
                     a = max(1.0 / self._count, 1.0 / self.memory)
                     self._mean = old.copy() if self._mean is None else (1 - a) * self._mean + a * old
-                background = cv2.GaussianBlur(self._mean if self._mean is not None else ring[0][0], (0, 0), 1.0)
+                background = self._mean if self._mean is not None else ring[0][0]
             else:
                 old, then = ring[0]
-                background = _moved(cv2.GaussianBlur(old, (0, 0), 1.0), off - then)
+                background = _moved(old, off - then)
         ring.append((r.copy() if r is residual else r, off.copy()))
         return background
 

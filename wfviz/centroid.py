@@ -109,6 +109,7 @@ def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2) -> 
     alive = gmax > 0
     pn, ys, xs = np.nonzero((grad > (gmax * 1e-9)[:, None, None]) & alive[:, None, None])
     g = grad[pn, ys, xs]
+    ys, xs = ys.astype(np.float64), xs.astype(np.float64)  # float sums even when empty
     level = np.minimum((g / gmax[pn] * bins).astype(np.int64), bins - 1)
     size = N_REGIONS * bins
     cx = np.full(n, (w - 1) / 2.0)

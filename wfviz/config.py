@@ -135,9 +135,9 @@ class TrackingConfig:
     p_detect: float = field(default=0.9, metadata=_range(0.05, 0.999))
     beta: float = field(default=0.01, metadata=_range(1e-6, 0.5))
     p_lost: float = field(default=0.001, metadata=_range(1e-9, 0.5))
-    position_noise: float = field(default=0.2, metadata=_range(0.001, 10.0))
+    position_noise: float = field(default=0.3, metadata=_range(0.001, 10.0))
     require_motion: bool = True
-    min_motion: float = field(default=1.0, metadata=_range(0.0, None))  # px, net (track_score)
+    min_motion: float = field(default=2.0, metadata=_range(0.0, None))  # px, net (track_score)
     static_change_rate: float = field(default=0.05, metadata=_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.5, metadata=_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=_range(1, None))

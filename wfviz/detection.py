@@ -21,7 +21,8 @@ class Detections:
     0 = background); ``threshold`` the adaptive threshold used (its median for a local
     threshold, whose map is ``threshold_map``); ``significance`` the signal-to-clutter ratio of
     each detection and ``blobness`` its shape measure, when computed (:func:`signal_to_clutter`,
-    :func:`blobness`).
+    :func:`blobness`); ``change`` the largest change significance among its pixels
+    (:func:`detect`, NaN where unknown).
     """
 
     xy: np.ndarray
@@ -35,6 +36,7 @@ class Detections:
     threshold_map: np.ndarray | None = None
     significance: np.ndarray | None = None
     blobness: np.ndarray | None = None
+    change: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -171,7 +173,8 @@ def blobness(image: np.ndarray, xy: np.ndarray, sigma: float) -> np.ndarray:
 
 
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
-           zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None) -> Detections:
+           zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None,
+           change: np.ndarray | None = None) -> Detections:
     """Threshold ``residual`` inside ``region`` and label 8-connected components.
 
     ``cfg.mode``: "cfar" thresholds at ``level + k_sigma · sigma`` of the local ``noise``
@@ -179,6 +182,12 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     ``(residual - level) / sigma``; "global" at mean + k·std of the whole region (the paper),
     where ``zones`` (masks partitioning the region, e.g. sky and ground) each get their own
     threshold; "local" at the mean + k·std of a ``local_window`` box.
+
+    ``change`` (cfar only): the change significance of every pixel (what is new at its place
+    in the scene, in its own noise σ; NaN where unknown). A pixel above ``k_sigma`` in either
+    map is detected, a component's significance is the larger of the two, its ``change`` the
+    largest change significance among its pixels, and its centroid weighs each pixel by how far
+    the larger of the two exceeds ``k_sigma``.
     """
     res = residual
     z_of = None  # (level, sigma) maps when significance comes from the noise estimate
@@ -212,7 +221,10 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         binary = cv2.compare(src, float(thr), cv2.CMP_GT) if np.isfinite(thr) else np.zeros(src.shape, np.uint8)
         binary &= np.asarray(region, dtype=bool).view(np.uint8)  # 255 & 1: a 0/1 mask
     else:
-        binary = ((excess > 0) & region).view(np.uint8)
+        above = excess > 0
+        if change is not None:
+            above |= np.nan_to_num(change, nan=-np.inf) > cfg.k_sigma
+        binary = (above & region).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
         k = 2 * cfg.merge_gap + 1
@@ -225,6 +237,12 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     lab = labels.ravel()[idx]
     raw = res.ravel()[idx].astype(np.float32)
     val = raw - np.float32(thr) if excess is None else excess.ravel()[idx]
+    zval = zc = None
+    if z_of is not None:
+        zval = ((raw - z_of[0].ravel()[idx]) / z_of[1].ravel()[idx]).astype(np.float64)
+        if change is not None:
+            zc = np.nan_to_num(change.ravel()[idx].astype(np.float64), nan=-np.inf)
+            val = (np.maximum(zval, zc) - cfg.k_sigma).astype(np.float32)
     w = residual.shape[1]
     ix, iy = idx % w, idx // w
     stats = _component_stats(lab, ix, iy, n)
@@ -237,12 +255,15 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     peak = np.zeros(n)
     np.maximum.at(peak, lab, raw)
     peak = peak[1:]
-    sig = None
-    if z_of is not None:  # significance of each component: its largest (r - level) / sigma
-        zval = (raw - z_of[0].ravel()[idx]) / z_of[1].ravel()[idx]
+    sig = changed = None
+    if zval is not None:  # significance of each component: its largest (r - level) / sigma
         sig = np.full(n, -np.inf)
-        np.maximum.at(sig, lab, zval.astype(np.float64))
+        np.maximum.at(sig, lab, zval if zc is None else np.maximum(zval, zc))
         sig = sig[1:]
+        if zc is not None:
+            changed = np.full(n, -np.inf)
+            np.maximum.at(changed, lab, zc)
+            changed = np.where(np.isfinite(changed[1:]), changed[1:], np.nan)
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = np.nonzero((area >= cfg.min_area) & (area <= cfg.max_area))[0]
     rank = peak if sig is None else sig
@@ -259,4 +280,5 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         threshold=thr,
         threshold_map=thr_map,
         significance=None if sig is None else sig[keep],
+        change=None if changed is None else changed[keep],
     )

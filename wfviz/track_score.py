@@ -21,11 +21,9 @@ below it (with P_D = 0.9 and a clean gate: after 3 consecutive misses, as in the
 
 **Evidence against static clutter.** Stars, lamps, roof corners, hot spots of the ground and
 fixed-pattern noise are persistent: they pass any hit count. They stay put in the scene, a
-target moves. :func:`motion_statistic` tests a track's recent scene positions (camera motion
-removed) for a non-zero velocity: least squares of x(t) = x0 + v t against x(t) = x0, with the
-position noise estimated from the track's own residuals (at least ``sigma_floor`` px). Under
-"stationary", T² = |v̂|² / var(v̂) is about χ² with 2 degrees of freedom, so ``T² >= -2 ln α``
-rejects it at the same rate α.
+target moves. :func:`motion` tests a track's recent scene positions (camera motion removed)
+for a non-zero velocity, robustly (Theil–Sen): under "stationary", T² = |v̂|² / var(v̂) is about
+χ² with 2 degrees of freedom, so ``T² >= -2 ln α`` rejects it at the same rate α.
 """
 
 from __future__ import annotations
@@ -130,39 +128,76 @@ def _q(k: float) -> float:
     return 0.5 * math.erfc(k / math.sqrt(2.0))
 
 
-def net_displacement(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """How far each track has moved across its recorded positions, robustly: the distance from
-    the median of its oldest third to the median of its newest third (a centroid that hops
-    between parts of a blob and back, or a single jump, moves neither median far). 0 with fewer
-    than 6 positions."""
-    n = len(t)
-    out = np.zeros(n)
-    for i in range(n):
+@dataclass(frozen=True)
+class Motion:
+    """A track's motion over its recorded scene positions: Theil–Sen ``velocity`` (px per frame,
+    the median of the slopes between every pair of positions, per axis); ``t2`` = |v|² Σ(t - t̄)²
+    / σ², with σ the robust scatter of the positions about that line (1.4826 × median absolute
+    residual, at least ``sigma_floor``): about χ² with 2 degrees of freedom for a track that does
+    not move; ``steady``: the least progress made in the direction of travel from the median
+    position of the oldest third of the positions to that of the middle third, and from there
+    to the newest third (px): a target keeps moving, a centroid that jumps once to a
+    neighbouring spot makes its progress in one third only."""
+
+    velocity: np.ndarray
+    steady: np.ndarray
+    t2: np.ndarray
+
+
+def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> Motion:
+    """:class:`Motion` of each track from positions ``xy`` (N, K, 2) at frames ``t`` (N, K)
+    where ``ok`` (N, K). Pairs, not a least-squares line: a centroid that jumps once to a
+    neighbouring spot and stays there, or hops back and forth, moves neither the median slope
+    nor the median residual much (up to about 29 % of the pairs may be wild). Zero with fewer
+    than 3 positions."""
+    n, k = t.shape
+    i, j = np.triu_indices(k, 1)
+    both = ok[:, i] & ok[:, j]
+    dt = t[:, j] - t[:, i]
+    good = both & (dt > 0)
+    slope = (xy[:, j, :] - xy[:, i, :]) / np.where(good, dt, 1.0)[..., None]
+    slope = np.where(good[..., None], slope, np.nan)
+    with np.errstate(all="ignore"):
+        import warnings
+
+        with warnings.catch_warnings():
+            warnings.simplefilter("ignore", RuntimeWarning)
+            v = np.nanmedian(slope, axis=1)
+            v = np.where(np.isfinite(v), v, 0.0)
+            tt = np.where(ok, t, np.nan)
+            t0 = np.nanmedian(tt, axis=1)
+            x0 = np.nanmedian(np.where(ok[..., None], xy - v[:, None, :] * (t - t0[:, None])[..., None],
+                                       np.nan), axis=1)
+            resid = np.where(ok[..., None], xy - x0[:, None, :] - v[:, None, :] * (t - t0[:, None])[..., None],
+                             np.nan)
+            sigma = 1.4826 * np.nanmedian(np.hypot(resid[..., 0], resid[..., 1]), axis=1) / np.sqrt(2.0)
+            span = np.nanmax(tt, axis=1) - np.nanmin(tt, axis=1)
+            tm = np.nanmean(tt, axis=1)
+            sxx = np.nansum((tt - tm[:, None]) ** 2, axis=1)
+    npos = ok.sum(axis=1)
+    sigma = np.maximum(np.nan_to_num(sigma, nan=sigma_floor), sigma_floor)
+    speed = np.hypot(v[:, 0], v[:, 1])
+    enough = npos >= 3
+    t2 = np.where(enough, speed ** 2 * np.nan_to_num(sxx) / sigma ** 2, 0.0)
+    del span
+    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok), t2)
+
+
+def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """:attr:`Motion.steady` of each track (0 with fewer than 6 positions)."""
+    out = np.zeros(len(t))
+    for i in range(len(t)):
         p = xy[i][ok[i]][np.argsort(t[i][ok[i]])]
         k = len(p) // 3
-        if k >= 2:
-            out[i] = float(np.hypot(*(np.median(p[-k:], axis=0) - np.median(p[:k], axis=0))))
+        if k < 2:
+            continue
+        m1, m2, m3 = (np.median(q, axis=0) for q in (p[:k], p[k:len(p) - k], p[len(p) - k:]))
+        d = m3 - m1
+        norm = float(np.hypot(*d))
+        if norm > 0:
+            u = d / norm
+            out[i] = min(float((m2 - m1) @ u), float((m3 - m2) @ u))
     return out
-
-
-def motion_statistic(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> np.ndarray:
-    """T² for a non-zero velocity of each track, from its positions ``xy`` (N, K, 2) at frames
-    ``t`` (N, K), where ``ok`` (N, K); 0 with fewer than 3 positions."""
-    w = ok.astype(np.float64)
-    n = w.sum(axis=1)
-    safe = np.maximum(n, 1.0)
-    tm = (w * t).sum(axis=1) / safe
-    dt = np.where(ok, t - tm[:, None], 0.0)
-    sxx = (dt * dt).sum(axis=1)
-    pts = np.where(ok[..., None], xy, 0.0)
-    mean = pts.sum(axis=1) / safe[:, None]
-    dev = np.where(ok[..., None], xy - mean[:, None, :], 0.0)
-    v = (dt[..., None] * dev).sum(axis=1) / np.maximum(sxx, 1e-12)[:, None]
-    resid = dev - dt[..., None] * v[:, None, :]
-    dof = np.maximum(2.0 * n - 4.0, 1.0)
-    var = np.maximum((resid * resid).sum(axis=(1, 2)) / dof, sigma_floor ** 2)
-    t2 = (v * v).sum(axis=1) * sxx / var
-    return np.where(n >= 3, t2, 0.0)
 
 
 class DetectionDensity:

@@ -524,10 +524,9 @@ class TrackManager:
         confirm = (measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm))
         if tc.require_motion and confirm.any():
             r = np.nonzero(confirm)[0]
-            t2 = track_score.motion_statistic(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
-                                              tc.position_noise)
-            moved = track_score.net_displacement(self.motion_t[r], self.motion_xy[r], self.motion_ok[r])
-            confirm[r[(t2 < th.motion) | (moved < tc.min_motion)]] = False
+            mo = track_score.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
+                                    tc.position_noise)
+            confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
         drop = ~conf & (self.score <= th.drop)
         lost = conf & (self.score <= th.delete)
         why = [""] * n

@@ -113,12 +113,13 @@ class GEWCTracker:
         lap("camera")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
-        noise = None
+        noise = change_z = None
         if self.noise is not None:
             moved = shift is not None and float(np.hypot(*shift)) > c.noise.tile / 4
             noise = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
+            change_z = self._change(raw, suppressed, img, camera)
             lap("noise")
-        dets = detect(suppressed, self._region, c.detection, self._zones, noise)
+        dets = detect(suppressed, self._region, c.detection, self._zones, noise, change_z)
         dets = score_detections(dets, img, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
@@ -126,28 +127,14 @@ class GEWCTracker:
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, self._offset,
             dets.peak / np.maximum(dets.thresholds(), 1e-12))
-        # what is new in the scene: the raw frame's residual (defects not yet replaced, so that a
-        # pixel flagged during the clip does not look like a change) against its past
-        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
-                                                                          c.suppression.method)
-        background = self.temporal.update(raw_residual, self._offset, camera is not None and camera.moving)
-        change = None
-        nov = np.full(len(dets), np.nan)
-        if background is not None:
-            now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
-            change = scene_change(now, background)
-            known = self._region & np.isfinite(change)
-            cn = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
-            # in units of the change's own spread, from 0: static structure is unchanged whatever
-            # the change image's typical level (a moving camera's dilated background makes it < 0)
-            nov = sample_at(change / cn.sigma, dets.xy)
+        nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
             pairs = self.manager.reacquire(preds, dets.xy, pairs, self._could_confirm(dets, labels),
                                            c.tracking.reacquire)
         lap("associate")
-        meas = self._measure(pairs, preds, dets, suppressed)
+        meas = self._measure(pairs, preds, dets, suppressed, noise)
         lap("centroid")
         claimed = self.manager.claimed(preds, dets.xy)
         used = np.zeros(len(dets), dtype=bool)
@@ -179,6 +166,26 @@ class GEWCTracker:
             clutter=labels, noise=noise, camera=camera,
         )
 
+    def _change(self, raw: np.ndarray, suppressed: np.ndarray, img: np.ndarray,
+                camera: CameraState | None) -> np.ndarray | None:
+        """Change significance of every pixel (:class:`wfviz.background.TemporalBackground`):
+        the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
+        clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's sampled
+        peak depends on where it falls between pixels), against the scene's past, in units of the
+        change's own spread and from 0 (static structure is unchanged whatever the change
+        image's typical level)."""
+        c = self.config
+        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
+                                                                          c.suppression.method)
+        now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
+        background = self.temporal.update(now, self._offset, camera is not None and camera.moving)
+        if background is None:
+            return None
+        change = scene_change(now, background)
+        known = self._region & np.isfinite(change)
+        spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
+        return change / spread.sigma
+
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
         """Detections that pass the confirmation tests in use one by one (significance,
         blobness, not static clutter): the ones a lost track may re-acquire."""
@@ -202,8 +209,10 @@ class GEWCTracker:
         return out
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
-                 suppressed: np.ndarray) -> dict[int, Measurement]:
-        """GEWC centroid of each assigned detection inside its track's window."""
+                 suppressed: np.ndarray, noise: NoiseEstimate | None = None) -> dict[int, Measurement]:
+        """GEWC centroid of each assigned detection inside its track's window (of the residual
+        above the threshold, or above the local level with the noise estimate: a detection
+        found in the change image alone may lie below the threshold)."""
         cc = self.config.centroid
         if not pairs:
             return {}
@@ -212,6 +221,7 @@ class GEWCTracker:
         sizes = np.maximum(cc.window, dets.bbox[di, 2:4].max(axis=1) + 4)
         results = measure_many(
             suppressed, dets.labels, dets.component[di], dets.xy[di], sizes,
+            noise.level if noise is not None else
             dets.threshold if dets.threshold_map is None else dets.threshold_map,
             cc.method, cc.gradient_bins, cc.iterations)
         return {ti: Measurement(preds[ti].track_id, r.x, r.y, r.weights, int(d))
