@@ -67,7 +67,10 @@ class TemporalBackground:
                     old = ring[0][0]
                     self._count += 1
                     a = max(1.0 / self._count, 1.0 / self.memory)
-                    self._mean = old.copy() if self._mean is None else (1 - a) * self._mean + a * old
+                    if self._mean is None:
+                        self._mean = old.copy()
+                    else:
+                        cv2.accumulateWeighted(old, self._mean, a)
                 background = self._mean if self._mean is not None else ring[0][0]
             else:
                 old, then = ring[0]
@@ -82,7 +85,7 @@ def change(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -
     on the pixels where the background is brightest (above its ``bright`` quantile), so that
     static structure cancels however the video's contrast drifts."""
     r = residual.astype(np.float32, copy=False)
-    bs, rs = background[::2, ::2], r[::2, ::2]  # every 4th pixel fits the gain as well
+    bs, rs = background[::2, ::2], r[::2, ::2]  # a quarter of the pixels fits the gain as well
     known = np.isfinite(bs)
     b = bs[known]
     if b.size < 16:
@@ -91,7 +94,7 @@ def change(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -
     bt, rt = b[top].astype(np.float64), rs[known][top].astype(np.float64)
     den = float(np.dot(bt, bt))
     g = float(np.dot(rt, bt)) / den if den > 0 else 1.0
-    return r - np.float32(g) * background
+    return cv2.scaleAdd(background, -g, r)
 
 
 def _moved(image: np.ndarray, d: np.ndarray) -> np.ndarray:

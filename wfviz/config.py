@@ -147,7 +147,7 @@ class TrackingConfig:
     confirm_moving: float = field(default=0.0, metadata=_range(0.0, None))
     confirm_moving_significance: float = field(default=1.0, metadata=_range(0.0, None))
     confirm_straightness: float = field(default=0.8, metadata=_range(0.0, 1.0))
-    reacquire: float = field(default=0.0, metadata=_range(0.0, None))  # px; 0: off (not in the paper)
+    reacquire: float = field(default=15.0, metadata=_range(0.0, None))  # px; 0: off (not in the paper)
     min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))

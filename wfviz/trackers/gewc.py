@@ -4,20 +4,18 @@ from __future__ import annotations
 
 from dataclasses import dataclass
 
-import cv2
 import numpy as np
 
-from wfviz.background import TemporalBackground, change as scene_change, suppress_background
 from wfviz.centroid import measure_many
-from wfviz.clutter import Novelty, StaticClutter
+from wfviz.clutter import StaticClutter
 from wfviz.config import GEWCConfig
-from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, sample_at, score_detections
+from wfviz.detection import Detections
 from wfviz.frames import Frame
-from wfviz.horizon import Horizon, HorizonTracker, search_zones
-from wfviz.imaging_circle import ImagingCircle, ImagingMask
-from wfviz.noise import NoiseEstimate, NoiseModel
-from wfviz.registration import CameraMotion, CameraState
+from wfviz.front_end import FrontEnd
+from wfviz.horizon import Horizon
+from wfviz.imaging_circle import ImagingCircle
+from wfviz.noise import NoiseEstimate
+from wfviz.registration import CameraState
 from wfviz.track_score import DetectionDensity
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
@@ -62,71 +60,29 @@ class GEWCTracker:
     def __init__(self, config: GEWCConfig | None = None) -> None:
         self.config = config or GEWCConfig()
         c = self.config
-        self._significance = c.detection.mode != "cfar" and (c.detection.significance
-                                                             or c.tracking.confirm_significance > 0)
+        self.front = FrontEnd(c)
         self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma)
-        self.horizon = HorizonTracker(c.horizon)
-        self.bad = BadPixels(c.defects)
-        self.motion = CameraMotion() if c.tracking.compensate_motion != "off" else None
-        self.noise = NoiseModel(c.noise.tile, c.noise.smoothing) if c.detection.mode == "cfar" else None
         self.density = DetectionDensity(c.noise.tile)
-        self.temporal = TemporalBackground()
-        self.change_noise = NoiseModel(c.noise.tile, c.noise.smoothing)
-        self.imaging = ImagingMask(c.circle)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
         if self.clutter is not None:
             self.manager.clutter_rule = c.clutter
-        self._offset = np.zeros(2)  # accumulated camera shift (scene -> image)
-        self._region: np.ndarray | None = None
-        self._valid: np.ndarray | None = None
-        self._zones: list[np.ndarray] | None = None
 
     @property
     def circle(self) -> ImagingCircle | None:
         """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
-        return self.imaging.circle
+        return self.front.circle
 
     def step(self, frame: Frame) -> GEWCResult:
         """Run every stage on one frame."""
         c = self.config
-        img = frame.image
         timer = StageTimer()
         lap = timer.lap
-        raw, img = img, self.bad.clean(img)
-        lap("defects")
-        mask, mask_changed = self.imaging.update(img)
-        if mask_changed or self._valid is None:
-            self._valid = ~mask
-        valid = self._valid
-        lap("mask")
-        horizon, horizon_updated = self.horizon.update(img, valid)
-        if horizon_updated or mask_changed or self._region is None:
-            self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
-                                                     c.horizon.exclude_ground, self.circle is not None)
-        lap("horizon")
-        camera = shift = None
-        if self.motion is not None:
-            camera = self.motion.update(img)
-            shift = camera.shift
-            self._offset = np.asarray(camera.offset, dtype=np.float64)
-            self.manager.shift(*shift)
-        lap("camera")
-        suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
-        lap("suppress")
-        noise = change_z = None
-        if self.noise is not None:
-            moved = shift is not None and float(np.hypot(*shift)) > c.noise.tile / 4
-            noise = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
-            change_z = self._change(raw, suppressed, img, camera)
-            lap("noise")
-        dets = detect(suppressed, self._region, c.detection, self._zones, noise, change_z)
-        dets = score_detections(dets, img, self._region, c.detection, self._significance,
-                                c.tracking.confirm_blobness > 0)
-        bad_changed = self.bad.update(raw, suppressed, dets.threshold)
-        lap("detect")
+        fe = self.front.step(frame.image, lap)
+        if fe.camera is not None:
+            self.manager.shift(*fe.camera.shift)
+        dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
-            dets.xy, suppressed, self._offset,
-            dets.peak / np.maximum(dets.thresholds(), 1e-12))
+            dets.xy, suppressed, fe.offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
         nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         preds = self.manager.predict(frame.index)
         pairs = self.manager.associate(preds, dets.xy)
@@ -134,7 +90,7 @@ class GEWCTracker:
             pairs = self.manager.reacquire(preds, dets.xy, pairs, self._could_confirm(dets, labels),
                                            c.tracking.reacquire)
         lap("associate")
-        meas = self._measure(pairs, preds, dets, suppressed, noise)
+        meas = self._measure(pairs, preds, dets, suppressed, fe.noise)
         lap("centroid")
         claimed = self.manager.claimed(preds, dets.xy)
         used = np.zeros(len(dets), dtype=bool)
@@ -143,7 +99,7 @@ class GEWCTracker:
         sig, blob = dets.significance, dets.blobness
         self.density.update(dets.xy[~claimed], valid)
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
-        self.manager.frame_shape = img.shape
+        self.manager.frame_shape = fe.image.shape
         events = self.manager.update(
             {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
             scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
@@ -159,38 +115,22 @@ class GEWCTracker:
         return GEWCResult(
             index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,
-            circle=self.circle, mask=mask, mask_changed=mask_changed, horizon=horizon,
-            horizon_updated=horizon_updated, suppressed=suppressed,
+            circle=fe.circle, mask=fe.mask, mask_changed=fe.mask_changed, horizon=fe.horizon,
+            horizon_updated=fe.horizon_updated, suppressed=suppressed,
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
-            bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed, camera_shift=shift,
-            clutter=labels, noise=noise, camera=camera,
+            bad_pixels=fe.bad_pixels, bad_pixels_changed=fe.bad_pixels_changed,
+            camera_shift=None if fe.camera is None else fe.camera.shift,
+            clutter=labels, noise=fe.noise, camera=fe.camera,
         )
 
-    def _change(self, raw: np.ndarray, suppressed: np.ndarray, img: np.ndarray,
-                camera: CameraState | None) -> np.ndarray | None:
-        """Change significance of every pixel (:class:`wfviz.background.TemporalBackground`):
-        the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
-        clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's sampled
-        peak depends on where it falls between pixels), against the scene's past, in units of the
-        change's own spread and from 0 (static structure is unchanged whatever the change
-        image's typical level)."""
-        c = self.config
-        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
-                                                                          c.suppression.method)
-        now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
-        background = self.temporal.update(now, self._offset, camera is not None and camera.moving)
-        if background is None:
-            return None
-        change = scene_change(now, background)
-        known = self._region & np.isfinite(change)
-        spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
-        return change / spread.sigma
-
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
-        """Detections that pass the confirmation tests in use one by one (significance,
-        blobness, not static clutter): the ones a lost track may re-acquire."""
+        """Detections that pass the confirmation tests in use one by one (new in the scene for
+        the sequential test; significance, blobness, not static clutter for the paper's rule
+        with its options): the ones a lost track may re-acquire."""
         t = self.config.tracking
         ok = np.ones(len(dets), dtype=bool)
+        if t.confirm == "sprt" and dets.change is not None:  # new at its place in the scene
+            ok &= np.nan_to_num(dets.change, nan=np.inf) > self.config.detection.k_sigma
         if dets.significance is not None and t.confirm_significance > 0:
             ok &= dets.significance >= t.confirm_significance
         if dets.blobness is not None:

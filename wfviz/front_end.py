@@ -1,0 +1,164 @@
+"""The stages every detection-based tracker shares (GEWC and fusion): defects, imaging circle,
+sky–ground line, camera motion, background suppression, local noise, change in the scene and
+noise-aware detection. Each frame goes through :meth:`FrontEnd.step`; the tracker then
+associates, measures and manages tracks.
+
+Order and stages (docs/pipeline.md):
+
+1. ``defects``: flagged hot and dead pixels replaced (:mod:`wfviz.defects`).
+2. ``mask``: the imaging circle of a fisheye lens and the frame border (:mod:`wfviz.imaging_circle`).
+3. ``horizon``: the sky–ground line, re-estimated every ``horizon.every`` frames
+   (:mod:`wfviz.horizon`); the search region and its zones follow from it.
+4. ``camera``: the scene's offset in the image (:mod:`wfviz.registration`).
+5. ``suppress``: the paper's 5 × 5 background suppression (:mod:`wfviz.background`).
+6. ``noise``: the residual's local level and noise σ (:mod:`wfviz.noise`).
+7. ``change``: what is new at each place in the scene, in its own noise σ
+   (:class:`wfviz.background.TemporalBackground`).
+8. ``detect``: components above ``k_sigma`` in either significance (:func:`wfviz.detection.detect`).
+"""
+
+from __future__ import annotations
+
+from collections.abc import Callable
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+from wfviz.background import TemporalBackground, change as scene_change, suppress_background
+from wfviz.config import GEWCConfig
+from wfviz.defects import BadPixels
+from wfviz.detection import Detections, detect, score_detections
+from wfviz.horizon import Horizon, HorizonTracker, search_zones
+from wfviz.imaging_circle import ImagingCircle, ImagingMask
+from wfviz.noise import NoiseEstimate, NoiseModel
+from wfviz.registration import CameraMotion, CameraState
+
+
+@dataclass(frozen=True)
+class FrontEndResult:
+    """One frame through the shared stages.
+
+    ``image``: the frame with defects replaced (``raw``: as read); ``valid``: inside the imaging
+    area; ``region``: where detections are searched; ``zones``: the parts of it with their own
+    noise statistics (None: one); ``offset``: the camera's (scene point s is at s + offset);
+    ``suppressed``: the background-suppressed residual; ``noise``: its local level and σ (None
+    outside "cfar" detection); ``change``: the change significance of every pixel (None on the
+    first frame); ``detections``: this frame's, with significance and change.
+    """
+
+    image: np.ndarray
+    raw: np.ndarray
+    mask: np.ndarray
+    mask_changed: bool
+    valid: np.ndarray
+    circle: ImagingCircle | None
+    horizon: Horizon | None
+    horizon_updated: bool
+    region: np.ndarray
+    zones: list[np.ndarray] | None
+    camera: CameraState | None
+    offset: np.ndarray
+    suppressed: np.ndarray
+    noise: NoiseEstimate | None
+    change: np.ndarray | None
+    detections: Detections
+    bad_pixels: np.ndarray
+    bad_pixels_changed: bool
+
+
+class FrontEnd:
+    """Streams frames through the shared stages (module docstring). ``config`` needs the
+    sections ``defects``, ``circle``, ``horizon``, ``suppression``, ``noise``, ``detection`` and
+    ``tracking`` (for ``compensate_motion`` and the shape test) of :class:`GEWCConfig`."""
+
+    def __init__(self, config: GEWCConfig) -> None:
+        c = self.config = config
+        self.bad = BadPixels(c.defects)
+        self.imaging = ImagingMask(c.circle)
+        self.horizon = HorizonTracker(c.horizon)
+        self.motion = CameraMotion() if c.tracking.compensate_motion != "off" else None
+        cfar = c.detection.mode == "cfar"
+        self.noise = NoiseModel(c.noise.tile, c.noise.smoothing) if cfar else None
+        self.temporal = TemporalBackground() if cfar else None
+        self.change_noise = NoiseModel(c.noise.tile, c.noise.smoothing) if cfar else None
+        self._significance = not cfar and (c.detection.significance or c.tracking.confirm_significance > 0)
+        self._valid: np.ndarray | None = None
+        self._region: np.ndarray | None = None
+        self._zones: list[np.ndarray] | None = None
+        self._offset = np.zeros(2)
+        self._noise: NoiseEstimate | None = None
+        self._spread: NoiseEstimate | None = None
+
+    @property
+    def circle(self) -> ImagingCircle | None:
+        """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
+        return self.imaging.circle
+
+    def step(self, raw: np.ndarray, lap: Callable[[str], None], windows: np.ndarray | None = None,
+             update_horizon: bool = True) -> FrontEndResult:
+        """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
+        ``windows`` (a mask): detect only there, with the noise statistics of the last frame
+        searched whole (a tracker's search windows); the temporal background still learns every
+        frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due)."""
+        c = self.config
+        img = self.bad.clean(raw)
+        lap("defects")
+        mask, mask_changed = self.imaging.update(img)
+        if mask_changed or self._valid is None:
+            self._valid = ~mask
+        valid = self._valid
+        lap("mask")
+        horizon, horizon_updated = (self.horizon.update(img, valid) if update_horizon
+                                    else (self.horizon.horizon, False))
+        if horizon_updated or mask_changed or self._region is None:
+            self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
+                                                     c.horizon.exclude_ground, self.circle is not None)
+        lap("horizon")
+        camera = None
+        if self.motion is not None:
+            camera = self.motion.update(img)
+            self._offset = np.asarray(camera.offset, dtype=np.float64)
+        lap("camera")
+        suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
+        lap("suppress")
+        noise = change = None
+        region = self._region if windows is None else self._region & windows
+        if self.noise is not None:
+            if windows is None or self._noise is None:
+                moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
+                self._noise = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
+            noise = self._noise
+            lap("noise")
+            change = self._change(raw, img, suppressed, camera, windows is None)
+            lap("change")
+        dets = detect(suppressed, region, c.detection, self._zones, noise, change)
+        dets = score_detections(dets, img, self._region, c.detection, self._significance,
+                                c.tracking.confirm_blobness > 0)
+        bad_changed = self.bad.update(raw, suppressed, dets.threshold)
+        lap("detect")
+        return FrontEndResult(img, raw, mask, mask_changed, valid, self.circle, horizon, horizon_updated,
+                              region, self._zones, camera, self._offset.copy(), suppressed, noise,
+                              change, dets, self.bad.flagged, bad_changed)
+
+    def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
+                camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
+        """Change significance of every pixel (:class:`wfviz.background.TemporalBackground`):
+        the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
+        clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's
+        sampled peak depends on where it falls between pixels), against the scene's past, in
+        units of the change's own spread and from 0 (static structure is unchanged whatever the
+        change image's typical level). ``learn_spread``: re-estimate that spread (else the last
+        one)."""
+        c = self.config
+        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
+                                                                          c.suppression.method)
+        now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
+        background = self.temporal.update(now, self._offset, camera is not None and camera.moving)
+        if background is None:
+            return None
+        change = scene_change(now, background)
+        if learn_spread or self._spread is None:
+            known = self._region & np.isfinite(change)
+            self._spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
+        return cv2.divide(change, self._spread.sigma)
