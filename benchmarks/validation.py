@@ -84,14 +84,44 @@ def jobs(groups: list[str], tracker: str, seeds: list[int], long_frames: int, ha
     return out
 
 
-def run_job(job: Job, tracker: str, config: str | None) -> dict:
+def apply_patches(patches: list[str]) -> None:
+    """``module.NAME=VALUE`` (a module constant, for ablations) set in this process."""
+    import importlib
+
+    for item in patches:
+        name, _, value = item.partition("=")
+        mod, _, const = name.rpartition(".")
+        setattr(importlib.import_module(mod), const, type(getattr(importlib.import_module(mod), const))(value))
+
+
+def load_with(tracker: str, config: str | None, settings: list[str]):  # noqa: ANN201
+    """The tracker's configuration with ``section.key=value`` settings applied."""
+    import dataclasses
+    import tomllib
+
+    from wfviz.config import load_config
+    from wfviz.trackers import config_class, make_tracker
+
+    cfg = load_config(config, config_class(tracker))
+    for item in settings:
+        key, _, value = item.partition("=")
+        section, _, field = key.partition(".")
+        sub = getattr(cfg, section)
+        parsed = tomllib.loads(f"v = {value}")["v"]
+        cfg = dataclasses.replace(cfg, **{section: dataclasses.replace(sub, **{field: parsed})})
+    return make_tracker(tracker, cfg)
+
+
+def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = (),
+            patches: list[str] = ()) -> dict:
     """Track one clip in-process and score it (confirmed tracks, the group's gate)."""
     import numpy as np
 
     from wfviz.clip import open_clip
     from wfviz.evaluate import read_truth
     from wfviz.run import run
-    from wfviz.trackers import load_tracker
+
+    apply_patches(list(patches))
 
     clip = open_clip(job.source)
     if job.truth is None:  # a synthetic scenario brings its own truth
@@ -111,7 +141,7 @@ def run_job(job: Job, tracker: str, config: str | None) -> dict:
                 rows.append((frame.index, t.track_id, t.x, t.y))
 
     t0 = time.perf_counter()
-    summary = run(clip, load_tracker(tracker, config), truth=truth, gate=GATES[job.group],
+    summary = run(clip, load_with(tracker, config, list(settings)), truth=truth, gate=GATES[job.group],
                   stop=job.stop, on_frame=outside)
     s = summary.scores
 
@@ -181,6 +211,10 @@ def main() -> None:
     ap.add_argument("--long-frames", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--json", type=Path, default=None)
+    ap.add_argument("--set", nargs="+", default=[], metavar="SECTION.KEY=VALUE",
+                    help="configuration settings over --config (TOML values)")
+    ap.add_argument("--patch", nargs="+", default=[], metavar="MODULE.NAME=VALUE",
+                    help="module constants, for ablations")
     ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md")
     args = ap.parse_args()
     todo = jobs(args.groups, args.tracker, args.seeds, args.long_frames, args.half, args.only)
@@ -188,7 +222,7 @@ def main() -> None:
         sys.exit("nothing to run (is ../shared/data there?)")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(run_job, j, args.tracker, args.config) for j in todo]
+        futures = [pool.submit(run_job, j, args.tracker, args.config, args.set, args.patch) for j in todo]
         results = []
         for f in futures:
             r = f.result()

@@ -109,7 +109,6 @@ def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2) -> 
     alive = gmax > 0
     pn, ys, xs = np.nonzero((grad > (gmax * 1e-9)[:, None, None]) & alive[:, None, None])
     g = grad[pn, ys, xs]
-    ys, xs = ys.astype(np.float64), xs.astype(np.float64)  # float sums even when empty
     level = np.minimum((g / gmax[pn] * bins).astype(np.int64), bins - 1)
     size = N_REGIONS * bins
     cx = np.full(n, (w - 1) / 2.0)
@@ -121,8 +120,8 @@ def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2) -> 
         region = ((angle + np.pi) / (2 * np.pi / N_REGIONS)).astype(np.int64) % N_REGIONS
         cell = pn * size + region * bins + level
         k = np.bincount(cell, minlength=n * size).reshape(n, N_REGIONS, bins).astype(np.float64)
-        sx = np.bincount(cell, weights=xs, minlength=n * size).reshape(n, N_REGIONS, bins)
-        sy = np.bincount(cell, weights=ys, minlength=n * size).reshape(n, N_REGIONS, bins)
+        sx = np.bincount(cell, weights=xs, minlength=n * size).reshape(n, N_REGIONS, bins).astype(np.float64)
+        sy = np.bincount(cell, weights=ys, minlength=n * size).reshape(n, N_REGIONS, bins).astype(np.float64)
         n_r = k.sum(axis=2, keepdims=True)
         q = np.divide(k, n_r, out=np.zeros_like(k), where=n_r > 0)              # eq. 4
         mx = np.divide(sx, k, out=np.zeros_like(sx), where=k > 0)               # eq. 5

@@ -253,6 +253,7 @@ class FusionConfig:
     circle: CircleConfig = CircleConfig()
     horizon: HorizonConfig = HorizonConfig()
     suppression: SuppressionConfig = SuppressionConfig()
+    noise: NoiseConfig = NoiseConfig()
     detection: DetectionConfig = DetectionConfig()
     features: FusionFeaturesConfig = FusionFeaturesConfig()
     fusion: FusionMatchConfig = FusionMatchConfig()
@@ -267,14 +268,9 @@ class FusionConfig:
         if f.alpha + f.beta + f.gamma <= 0:
             raise ConfigError("fusion.alpha + fusion.beta + fusion.gamma must be positive")
         t = self.tracking  # GEWC-only options of the shared section
-        if getattr(t, "reacquire", 0.0) > 0:
-            raise ConfigError("tracking.reacquire is not supported by the fusion tracker (it recovers "
-                              "lost tracks by global detection); keep 0")
         if getattr(t, "confirm_moving", 0.0) > 0:
-            raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (without "
-                              "camera-motion compensation it cannot tell scene from image motion); keep 0")
-        if getattr(t, "compensate_motion", "off") == "on":  # never: "auto" | "off" only
-            raise ConfigError("tracking.compensate_motion is not supported by the fusion tracker")
+            raise ConfigError("tracking.confirm_moving is not supported by the fusion tracker (the "
+                              "paper's rule with the GEWC real-footage options); keep 0")
         if getattr(t, "meeting_misses", False):
             raise ConfigError("tracking.meeting_misses is not supported by the fusion tracker "
                               "(it associates in its own search windows)")

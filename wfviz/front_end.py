@@ -20,7 +20,7 @@ Order and stages (docs/pipeline.md):
 from __future__ import annotations
 
 from collections.abc import Callable
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
@@ -31,8 +31,12 @@ from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect, score_detections
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
-from wfviz.noise import NoiseEstimate, NoiseModel
+from wfviz.noise import NoiseEstimate, NoiseModel, TailCalibration
 from wfviz.registration import CameraMotion, CameraState
+
+
+SPATIAL_OVERALL = False  # the residual's tail calibration holds a floor over the whole frame
+CHANGE_OVERALL = True   # the change's does
 
 
 @dataclass(frozen=True)
@@ -89,6 +93,9 @@ class FrontEnd:
         self._offset = np.zeros(2)
         self._noise: NoiseEstimate | None = None
         self._spread: NoiseEstimate | None = None
+        self.tail = TailCalibration(c.noise.tile)         # of the residual's significance
+        self.change_tail = TailCalibration(c.noise.tile)  # of the change significance
+        self._change_factor: np.ndarray | None = None
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -127,7 +134,9 @@ class FrontEnd:
         if self.noise is not None:
             if windows is None or self._noise is None:
                 moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
-                self._noise = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
+                est = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
+                g = self.tail.update(est.significance(suppressed), self._region, overall=SPATIAL_OVERALL)
+                self._noise = replace(est, sigma=est.sigma * g)
             noise = self._noise
             lap("noise")
             change = self._change(raw, img, suppressed, camera, windows is None)
@@ -140,6 +149,22 @@ class FrontEnd:
         return FrontEndResult(img, raw, mask, mask_changed, valid, self.circle, horizon, horizon_updated,
                               region, self._zones, camera, self._offset.copy(), suppressed, noise,
                               change, dets, self.bad.flagged, bad_changed)
+
+    def redetect(self, result: FrontEndResult, lap: Callable[[str], None]) -> FrontEndResult:
+        """``result`` (a frame searched in windows only) detected again over the whole search
+        region, with this frame's own noise statistics (the other stages are not repeated)."""
+        c = self.config
+        noise = result.noise
+        if self.noise is not None:
+            est = self.noise.update(result.suppressed, self._region, self._zones, image=result.image)
+            g = self.tail.update(est.significance(result.suppressed), self._region, overall=SPATIAL_OVERALL)
+            noise = self._noise = replace(est, sigma=est.sigma * g)
+            lap("noise")
+        dets = detect(result.suppressed, self._region, c.detection, self._zones, noise, result.change)
+        dets = score_detections(dets, result.image, self._region, c.detection, self._significance,
+                                c.tracking.confirm_blobness > 0)
+        lap("detect")
+        return replace(result, region=self._region, noise=noise, detections=dets)
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
@@ -161,4 +186,7 @@ class FrontEnd:
         if learn_spread or self._spread is None:
             known = self._region & np.isfinite(change)
             self._spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
-        return cv2.divide(change, self._spread.sigma)
+            z = cv2.divide(change, self._spread.sigma)
+            self._change_factor = self.change_tail.update(z, known, overall=CHANGE_OVERALL)
+            return cv2.divide(z, self._change_factor)
+        return cv2.divide(cv2.divide(change, self._spread.sigma), self._change_factor)

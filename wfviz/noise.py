@@ -196,3 +196,60 @@ class NoiseModel:
                 sigma = np.where(z, sg_full, sigma)
         lv0, sg0 = grids[0]
         return NoiseEstimate(level, np.maximum(sigma, floor), lv0, sg0, self.tile, q)
+
+
+SHARE = 0.75  # TailCalibration: a tail as heavy as that of this share of the tiles holds everywhere
+TAIL_QUANTILE = 0.999  # TailCalibration: where the tail is measured
+
+
+class TailCalibration:
+    """How much heavier than a Gaussian's the upper tail of a clip's significance is, far out:
+    the ``quantile`` of the significance of each ``tile`` × ``tile`` tile, pooled over frames (a
+    histogram per tile blended with weight ``memory`` on the past), divided by a unit
+    Gaussian's; the factor of a tile is the median of that over the tile and its 8 neighbours
+    (a target fills few tiles), at least 1 (:attr:`grid`; tiles that have seen fewer than
+    ``min_samples`` pixels take their nearest neighbour's). Compressed video clumps its noise
+    into blobs that persist for a group of pictures, and textured clutter has more bright spots
+    than noise would: both fatten the tail beyond the 99th percentile that :func:`heavy_tail`
+    measures in one frame. Dividing the significance by the factor makes ``k_sigma`` cut as far
+    into that tail as into Gaussian noise, place by place."""
+
+    def __init__(self, tile: int = 32, quantile: float | None = None, memory: float = 0.9,
+                 lo: float = -8.0, hi: float = 64.0, step: float = 0.1, min_samples: float = 1000.0) -> None:
+        from statistics import NormalDist
+
+        quantile = TAIL_QUANTILE if quantile is None else quantile
+        self.tile, self.quantile, self.memory, self.min_samples = tile, quantile, memory, min_samples
+        self.lo, self.step = lo, step
+        self.nbins = int(round((hi - lo) / step))
+        self.counts: np.ndarray | None = None
+        self.gauss = NormalDist().inv_cdf(quantile)
+        self.grid: np.ndarray | None = None
+
+    def update(self, z: np.ndarray, valid: np.ndarray, every: int = 2, overall: bool = True) -> np.ndarray:
+        """Add the significance map ``z`` (every ``every``-th row and column, ``valid`` pixels
+        only); returns the factor of every pixel (float32, ``z``'s shape). ``overall``: at least
+        the tail ratio that :data:`SHARE` of the tiles reach, everywhere."""
+        h, w = z.shape
+        t = self.tile
+        nx = -(-w // t)
+        ny = -(-h // t)
+        rows, cols = np.nonzero(valid[::every, ::every])
+        v = z[::every, ::every][rows, cols]
+        ok = np.isfinite(v)
+        rows, cols, v = rows[ok] * every, cols[ok] * every, v[ok]
+        tiles = (rows // t) * nx + cols // t
+        b = np.clip(((v - self.lo) / self.step).astype(np.int64), 0, self.nbins - 1)
+        if self.counts is None or self.counts.shape[0] != nx * ny:
+            self.counts = np.zeros((nx * ny, self.nbins))
+        self.counts *= self.memory
+        self.counts += np.bincount(tiles * self.nbins + b, minlength=nx * ny * self.nbins).reshape(-1, self.nbins)
+        total = self.counts.sum(axis=1)
+        cdf = np.cumsum(self.counts, axis=1)
+        idx = (cdf < self.quantile * total[:, None]).sum(axis=1)
+        ratio = (self.lo + (idx + 1) * self.step) / self.gauss
+        ratio = np.where(total >= self.min_samples, ratio, np.nan).reshape(ny, nx)
+        self.grid = heavy_tail(ratio)  # 3 x 3 median, at least 1
+        seen = ratio[np.isfinite(ratio)]
+        least = max(1.0, float(np.quantile(seen, SHARE))) if seen.size and overall else 1.0
+        return upsample(np.maximum(fill_missing(self.grid, 1.0), least), (h, w), t)

@@ -298,21 +298,29 @@ class TrackManager:
         mode take no measurement, and tentative tracks take none inside a confirmed track's
         gate (so they cannot steal a meeting pair's detections). No detection is used twice.
         """
-        self.nearest = np.full(len(self), -1, dtype=np.int64)
+        self.find_nearest(preds, xy)
         if not preds or len(xy) == 0:
             return {}
         centres, halves, confirmed, meeting = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
-        want_near = self.tcfg.meeting_misses or self.clutter_rule is not None or self.tcfg.confirm == "sprt"
-        if want_near and len(preds) == len(self):  # near: within the gate, at most 2 gate_min
-            near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
-            dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
-            self.nearest = np.where(near.any(axis=1), dist.argmin(axis=1), -1)
         cost = np.einsum("tdi,tij,tdj->td", diff, self._S_inv, diff)  # squared Mahalanobis
         # a confirmed track's gate is off limits to tentative ones, even while it is meeting
         return assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
                                       protected=inside[confirmed].any(axis=0))
+
+    def find_nearest(self, preds: list[Prediction], xy: np.ndarray) -> None:
+        """``nearest``: per track, the detection nearest its prediction within its gate and at
+        most 2 ``gate_min`` away (-1: none); a meeting track's evidence (does its target still
+        show near its extrapolation?) and its static-clutter label come from it."""
+        self.nearest = np.full(len(self), -1, dtype=np.int64)
+        if not preds or len(xy) == 0 or len(preds) != len(self):
+            return
+        centres, halves, _, _ = self._arrays(preds)
+        diff = xy[None, :, :] - centres[:, None, :]
+        near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
+        dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
+        self.nearest = np.where(near.any(axis=1), dist.argmin(axis=1), -1)
 
     def reacquire(self, preds: list[Prediction], xy: np.ndarray, pairs: dict[int, int],
                   eligible: np.ndarray, radius: float) -> dict[int, int]:

@@ -33,20 +33,18 @@ the means of the track's matched areas and grey sums). Φ is logged per track in
 from __future__ import annotations
 
 import math
-import time
-from dataclasses import dataclass, field, replace
+from dataclasses import dataclass, replace
 
 import cv2
 import numpy as np
-from scipy.ndimage import find_objects
 
-from wfviz.background import suppress_background
 from wfviz.config import FusionConfig
-from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, score_detections
+from wfviz.detection import Detections
 from wfviz.frames import Frame
-from wfviz.horizon import Horizon, HorizonTracker, search_zones
-from wfviz.imaging_circle import ImagingCircle, ImagingMask
+from wfviz.front_end import FrontEnd
+from wfviz.horizon import Horizon
+from wfviz.imaging_circle import ImagingCircle
+from wfviz.track_score import DetectionDensity
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackEvent, TrackManager, assign_confirmed_first
 
@@ -136,19 +134,6 @@ class _Ref:
         self.area, self.grey, self.phi, self.in_window = area, grey, phi, in_window
 
 
-@dataclass
-class _Segments:
-    """Components found in one crop, in frame coordinates."""
-
-    centre: list = field(default_factory=list)
-    area: list = field(default_factory=list)
-    peak: list = field(default_factory=list)
-    flux: list = field(default_factory=list)
-    raw: list = field(default_factory=list)
-    bbox: list = field(default_factory=list)
-    rects: list = field(default_factory=list)
-
-
 def min_area_rect(xs: np.ndarray, ys: np.ndarray) -> tuple[tuple[float, float], np.ndarray]:
     """Centre and corners (4, 2) of the minimum-area rectangle enclosing the pixel squares
     (centres ``xs``, ``ys``), by ``cv2.minAreaRect`` on the squares' corners."""
@@ -166,46 +151,6 @@ def box_corners(bbox: np.ndarray) -> np.ndarray:
     r, d = a + b[:, 2], t + b[:, 3]
     return np.stack([np.column_stack([a, t]), np.column_stack([r, t]), np.column_stack([r, d]),
                      np.column_stack([a, d])], axis=1)
-
-
-def component_features(labels: np.ndarray, n: int, residual: np.ndarray, raw: np.ndarray | None,
-                       threshold: float, centre: str) -> dict[str, np.ndarray]:
-    """Features of components 1..n-1 of ``labels`` (index k = label k + 1): ``bbox`` (x, y, w,
-    h), ``area``, ``centroid`` of (residual - threshold), ``peak``, ``flux`` (residual sum),
-    ``raw`` (raw grey sum, when ``raw`` is given), ``centre`` and ``rects`` (corners (4, 2)).
-
-    ``centre``: "bbox" the centre of the axis-aligned bounding rectangle, "centroid" the
-    intensity centroid (rects stay axis-aligned); for "min_area_rect" this function returns the
-    axis-aligned values and the caller refines the components it keeps with :func:`min_area_rects`.
-    """
-    idx = np.flatnonzero(labels)
-    lab = labels.ravel()[idx]
-    w = labels.shape[1]
-    xs, ys = (idx % w).astype(np.float64), (idx // w).astype(np.float64)
-    res = residual.ravel()[idx].astype(np.float64)
-    area = np.bincount(lab, minlength=n)[1:]
-    ok = area > 0
-    box = np.zeros((n - 1, 4), dtype=np.int64)  # y0, y1, x0, x1 (half-open)
-    for k, sl in enumerate(find_objects(labels, max_label=n - 1)):
-        if sl is not None:
-            box[k] = sl[0].start, sl[0].stop, sl[1].start, sl[1].stop
-    x0, y0 = box[:, 2], box[:, 0]
-    bw, bh = np.where(ok, box[:, 3] - x0, 0), np.where(ok, box[:, 1] - y0, 0)
-    ex = np.maximum(res - threshold, 0.0)
-    s = np.bincount(lab, weights=ex, minlength=n)[1:]
-    safe = np.where(s > 0, s, 1.0)
-    cen = np.column_stack([np.bincount(lab, weights=ex * xs, minlength=n)[1:] / safe,
-                           np.bincount(lab, weights=ex * ys, minlength=n)[1:] / safe])
-    peak = np.zeros(n)
-    np.maximum.at(peak, lab, res)
-    bbox = np.column_stack([x0, y0, bw, bh]).astype(np.int64)
-    out = dict(area=area, bbox=bbox, centroid=cen, peak=peak[1:], rects=box_corners(bbox),
-               flux=np.bincount(lab, weights=res, minlength=n)[1:],
-               centre=cen if centre == "centroid"
-               else np.column_stack([x0 + (bw - 1) / 2.0, y0 + (bh - 1) / 2.0]).astype(np.float64))
-    if raw is not None:
-        out["raw"] = np.bincount(lab, weights=raw.ravel()[idx].astype(np.float64), minlength=n)[1:]
-    return out
 
 
 def min_area_rects(labels: np.ndarray, components: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
@@ -264,24 +209,17 @@ class FusionTracker:
     def __init__(self, config: FusionConfig | None = None) -> None:
         self.config = config or FusionConfig()
         c = self.config
-        self.manager = TrackManager(c.kalman, c.tracking)
-        self.horizon = HorizonTracker(c.horizon)
-        self.bad = BadPixels(c.defects)
-        self.imaging = ImagingMask(c.circle)
-        self.horizon_line: Horizon | None = None
-        self._region: np.ndarray | None = None
-        self._zones: list[np.ndarray] | None = None  # sky and ground, each its own threshold
-        self._threshold = float("inf")
+        self.front = FrontEnd(c)
+        self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma)
+        self.density = DetectionDensity(c.noise.tile)
         self._refs: dict[int, _Ref] = {}
         self._steps = 0
-        self._inf_map: np.ndarray | None = None
-        self._inf_dirty: list[tuple[int, int, int, int]] = []
 
     # -- helpers --------------------------------------------------------------------------
     @property
     def circle(self) -> ImagingCircle | None:
         """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
-        return self.imaging.circle
+        return self.front.circle
 
     def _crops(self, preds: list[Prediction], shape: tuple[int, int]
                ) -> list[tuple[tuple[int, int, int, int], np.ndarray]]:
@@ -323,153 +261,49 @@ class FusionTracker:
             out.append(((int(x0), int(y0), int(x1), int(y1)), idx[m]))
         return out
 
-    def _search_windows(self, img: np.ndarray, preds: list[Prediction], search: list[int]
-                        ) -> tuple[Detections, Features, np.ndarray, np.ndarray, list]:
-        """Suppression, thresholding and components inside the search windows only."""
-        c = self.config
-        h, w = img.shape
-        size = c.suppression.size
-        reach = 2 * (size // 2)  # the opening looks this far: crops are grown so it is exact
-        suppressed = np.zeros(img.shape, dtype=img.dtype if img.dtype in (np.uint8, np.uint16, np.float32)
-                              else np.float32)
-        if self._inf_map is None or self._inf_map.shape != img.shape:
-            self._inf_map = np.full(img.shape, np.inf, dtype=np.float32)
-        for x0, y0, x1, y1 in self._inf_dirty:  # restore last frame's windows
-            self._inf_map[y0:y1, x0:x1] = np.inf
-        residual_map = self._inf_map  # defects test only the windows (inf: never a spike)
-        self._inf_dirty = []
-        labels_full = np.zeros(img.shape, dtype=np.int32)
-        seg = _Segments()
-        searched = []
-        T = self._threshold
-        region = self._region
-        gap = c.detection.merge_gap
-        kernel = np.ones((2 * gap + 1, 2 * gap + 1), np.uint8) if gap > 0 else None
-        want_raw = c.features.grey == "raw"
-        sub = [preds[i] for i in search]
-        next_label = 1
-        for (x0, y0, x1, y1), members in self._crops(sub, img.shape):
-            X0, Y0 = max(x0 - reach, 0), max(y0 - reach, 0)
-            X1, Y1 = min(x1 + reach, w), min(y1 + reach, h)
-            res = suppress_background(img[Y0:Y1, X0:X1], size, c.suppression.method)
-            res = res[y0 - Y0:y1 - Y0, x0 - X0:x1 - X0]
-            suppressed[y0:y1, x0:x1] = res
-            residual_map[y0:y1, x0:x1] = res
-            searched.append((x0, y0, x1, y1))
-            self._inf_dirty.append((x0, y0, x1, y1))
-            binary = ((res.astype(np.float32, copy=False) > T) & region[y0:y1, x0:x1]).astype(np.uint8)
-            if not binary.any():
-                continue
-            if kernel is not None:
-                grown = cv2.dilate(binary, kernel)
-                n, labels = cv2.connectedComponents(grown, connectivity=8, ltype=cv2.CV_32S)
-                labels[binary == 0] = 0
-            else:
-                n, labels = cv2.connectedComponents(binary, connectivity=8, ltype=cv2.CV_32S)
-            if n <= 1:
-                continue
-            f = component_features(labels, n, res, img[y0:y1, x0:x1] if want_raw else None, T,
-                                   c.features.centre)
-            off = np.array([x0, y0], dtype=np.float64)
-            cen = f["centre"] + off  # the bbox centre in "min_area_rect" mode: refined below
-            # keep components of allowed size whose centre lies in one of the crop's windows
-            pc = np.array([[sub[m].x, sub[m].y] for m in members])
-            ph = np.array([[sub[m].half_w, sub[m].half_h] for m in members])
-            inside = (np.abs(cen[None, :, :] - pc[:, None, :]) <= ph[:, None, :]).all(axis=2).any(axis=0)
-            keep = np.nonzero(inside & (f["area"] >= c.detection.min_area)
-                              & (f["area"] <= c.detection.max_area))[0]
-            if keep.size == 0:
-                continue
-            rects = f["rects"][keep]
-            if c.features.centre == "min_area_rect":
-                rc, rects = min_area_rects(labels, keep + 1)
-                cen[keep] = rc + off
-            remap = np.zeros(n, dtype=np.int32)
-            remap[keep + 1] = np.arange(next_label, next_label + keep.size, dtype=np.int32)
-            next_label += keep.size
-            mapped = remap[labels]
-            hit = mapped > 0
-            labels_full[y0:y1, x0:x1][hit] = mapped[hit]
-            seg.centre.append(cen[keep])
-            seg.area.append(f["area"][keep])
-            seg.peak.append(f["peak"][keep])
-            seg.flux.append(f["flux"][keep])
-            if want_raw:
-                seg.raw.append(f["raw"][keep])
-            b = f["bbox"][keep].copy()
-            b[:, 0] += x0
-            b[:, 1] += y0
-            seg.bbox.append(b)
-            seg.rects.append(rects + off)
-        cat = (lambda v, shape: np.concatenate(v) if v else np.zeros(shape))
-        centre = cat(seg.centre, (0, 2))
-        area = cat(seg.area, (0,)).astype(np.int64)
-        flux = cat(seg.flux, (0,))
-        dets = Detections(xy=centre, area=area, peak=cat(seg.peak, (0,)), flux=flux,
-                          bbox=cat(seg.bbox, (0, 4)).astype(np.int64),
-                          component=np.arange(1, len(area) + 1), labels=labels_full, threshold=T)
-        grey = cat(seg.raw, (0,)) if want_raw else flux.astype(np.float64)
-        feats = Features(centre, area, grey, cat(seg.rects, (0, 4, 2)))
-        return dets, feats, suppressed, residual_map, searched
+    def _window_mask(self, preds: list[Prediction], search: list[int], shape: tuple[int, int]
+                     ) -> tuple[np.ndarray, list[tuple[int, int, int, int]]]:
+        """The pixels of the search crops of the tracks ``search`` (and the crops)."""
+        mask = np.zeros(shape, dtype=bool)
+        crops = [box for box, _ in self._crops([preds[i] for i in search], shape)]
+        for x0, y0, x1, y1 in crops:
+            mask[y0:y1, x0:x1] = True
+        return mask, crops
 
-    def _global(self, img: np.ndarray, valid: np.ndarray, mask_changed: bool
-                ) -> tuple[Detections, Features, np.ndarray, bool, dict[str, float]]:
-        """Horizon (when due), full-frame suppression and detection, features."""
+    def _features(self, dets: Detections, img: np.ndarray) -> tuple[Detections, Features]:
+        """The fused features of each candidate (centre, area, grey sum, rectangle); the
+        detections' positions become the feature centres."""
         c = self.config
-        times: dict[str, float] = {}
-        t0 = time.perf_counter()
-        horizon, updated = self.horizon.update(img, valid)
-        if updated or mask_changed or self._region is None:
-            self._region, self._zones = search_zones(valid, horizon, c.horizon.margin,
-                                                     c.horizon.exclude_ground, self.circle is not None)
-        self.horizon_line = horizon
-        t1 = time.perf_counter()
-        times["horizon"] = (t1 - t0) * 1e3
-        suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
-        t2 = time.perf_counter()
-        times["suppress"] = (t2 - t1) * 1e3
-        dets = detect(suppressed, self._region, c.detection, self._zones)
-        if np.isfinite(dets.threshold):
-            self._threshold = dets.threshold
         if not len(dets):
-            feats = Features(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 4, 2)))
+            return dets, Features(np.zeros((0, 2)), np.zeros(0, np.int64), np.zeros(0), np.zeros((0, 4, 2)))
+        b = dets.bbox.astype(np.float64)
+        rects = box_corners(b)
+        if c.features.centre == "min_area_rect":
+            centre, rects = min_area_rects(dets.labels, dets.component)
+        elif c.features.centre == "centroid":
+            centre = dets.xy.astype(np.float64)
         else:
-            # detect() already measured each component: bbox, area, residual sum, centroid
-            b = dets.bbox.astype(np.float64)
-            rects = box_corners(b)
-            if c.features.centre == "min_area_rect":
-                centre, rects = min_area_rects(dets.labels, dets.component)
-            elif c.features.centre == "centroid":
-                centre = dets.xy.astype(np.float64)
-            else:
-                centre = np.column_stack([b[:, 0] + (b[:, 2] - 1) / 2.0, b[:, 1] + (b[:, 3] - 1) / 2.0])
-            if c.features.grey == "raw":
-                idx = np.flatnonzero(dets.labels)
-                sums = np.bincount(dets.labels.ravel()[idx], weights=img.ravel()[idx].astype(np.float64),
-                                   minlength=int(dets.component.max()) + 1)
-                grey = sums[dets.component]
-            else:
-                grey = dets.flux.astype(np.float64)
-            feats = Features(centre, dets.area, grey, rects)
-            dets = replace(dets, xy=feats.centre)
-        times["detect"] = (time.perf_counter() - t2) * 1e3
-        return dets, feats, suppressed, updated, times
+            centre = np.column_stack([b[:, 0] + (b[:, 2] - 1) / 2.0, b[:, 1] + (b[:, 3] - 1) / 2.0])
+        if c.features.grey == "raw":
+            idx = np.flatnonzero(dets.labels)
+            sums = np.bincount(dets.labels.ravel()[idx], weights=img.ravel()[idx].astype(np.float64),
+                               minlength=int(dets.component.max()) + 1)
+            grey = sums[dets.component]
+        else:
+            grey = dets.flux.astype(np.float64)
+        feats = Features(centre, dets.area, grey, rects)
+        return replace(dets, xy=feats.centre), feats
 
     # -- per frame ------------------------------------------------------------------------
     def step(self, frame: Frame) -> FusionResult:
         """Run every stage on one frame."""
         fc = self.config.fusion
-        timer = StageTimer(("defects", "mask", "horizon", "windows", "suppress", "detect",
-                            "associate", "kalman"))
-        lap, timings = timer.lap, timer.timings
-        raw, img = frame.image, self.bad.clean(frame.image)
-        lap("defects")
-        mask, mask_changed = self.imaging.update(img)
-        if mask_changed:
-            self._region = None
-        valid = ~mask
-        lap("mask")
-        preds = self.manager.predict(frame.index)
+        timer = StageTimer(("defects", "mask", "horizon", "camera", "suppress", "noise", "change",
+                            "detect", "associate", "kalman"))
+        lap = timer.lap
+        shape = frame.image.shape
+        mgr = self.manager
+        preds = mgr.predict(frame.index)
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
         half = np.array([[p.half_w, p.half_h] for p in preds], dtype=np.float64).reshape(-1, 2)
         confirmed = np.array([p.confirmed for p in preds], dtype=bool)
@@ -477,7 +311,7 @@ class FusionTracker:
         lap("associate")
 
         reason = ""
-        if self._steps == 0 or self._region is None:
+        if self._steps == 0:
             reason = "first frame"
         elif not confirmed.any():
             reason = "no confirmed track"
@@ -486,15 +320,15 @@ class FusionTracker:
         self._steps += 1
 
         searched: list = []
-        horizon_updated = False
-        residual_map = None
         pairs: dict[int, int] = {}
         lost: list[int] = []
+        fe = None
         if not reason:
             search = [i for i in range(len(preds)) if active[i]]
-            dets, feats, suppressed, residual_map, searched = self._search_windows(img, preds, search)
-            lap("windows")
-            pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, frame.image.shape)
+            windows, searched = self._window_mask(preds, search, shape)
+            fe = self.front.step(frame.image, lap, windows=windows, update_horizon=False)
+            dets, feats = self._features(fe.detections, fe.image)
+            pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, shape)
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
             lap("associate")
             if lost:
@@ -502,45 +336,49 @@ class FusionTracker:
                 reason = f"track{'s' if len(lost) > 1 else ''} {ids}: no candidate in the search window"
         is_global = bool(reason)
         events_pre: list[TrackEvent] = []
+        recovered: dict[int, int] = {}
+        recover_cost: dict[int, float] = {}
         if is_global:
             for i in lost:
                 events_pre.append(TrackEvent(frame.index, "redetect", preds[i].track_id,
                                              f"track {preds[i].track_id}: no candidate in its search "
                                              f"window, global detection reruns"))
-            dets, feats, suppressed, horizon_updated, times = self._global(img, valid, mask_changed)
-            for k, v in times.items():
-                timings[k] += v
-            timer.skip()  # _global timed its own stages
-            pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, frame.image.shape)
+            if fe is None:
+                fe = self.front.step(frame.image, lap)
+            else:  # the windows were searched: detect in the whole frame, this frame's statistics
+                fe = self.front.redetect(fe, lap)
+            searched = []
+            dets, feats = self._features(fe.detections, fe.image)
+            pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, shape)
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
-            recovered, recover_cost = self._recover(preds, pred_xy, lost, pairs, feats, confirmed,
-                                                    half, frame.image.shape)
+            recovered, recover_cost = self._recover(preds, pred_xy, lost, pairs, feats, confirmed, half, shape)
             lap("associate")
-        else:
-            recovered, recover_cost = {}, {}
-        matches, meas = self._matches(preds, pairs, recovered, recover_cost, cost, feats,
-                                      frame.image.shape)
+        if fe.camera is not None:
+            mgr.shift(*fe.camera.shift)
+        matches, meas = self._matches(preds, pairs, recovered, recover_cost, cost, feats, shape)
         births = np.zeros((0, 2))
         born_idx = np.zeros(0, dtype=np.int64)
+        claimed = mgr.claimed(preds, feats.centre)
         if is_global and len(dets):
             used = np.zeros(len(dets), dtype=bool)
             used[list(pairs.values()) + list(recovered.values())] = True
-            claimed = self.manager.claimed(preds, feats.centre)
             born_idx = np.nonzero(~used & ~claimed)[0]
             births = feats.centre[born_idx]
-        velocities = {i: self.manager.velocity(i) for i in recovered}
-        tc = self.config.tracking  # for the confirmation tests (and the hover values)
-        dets = score_detections(dets, img, self._region, self.config.detection,
-                                self.config.detection.significance or tc.confirm_significance > 0,
-                                tc.confirm_blobness > 0)
+            self.density.update(feats.centre[~claimed], fe.valid)
+        mgr.find_nearest(preds, feats.centre)
+        velocities = {i: mgr.velocity(i) for i in recovered}
         sig, blob = dets.significance, dets.blobness
+        nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         taken = {**pairs, **recovered}
-        events = events_pre + self.manager.update(
+        mgr.frame_shape = shape
+        events = events_pre + mgr.update(
             meas, births,
             scores=None if sig is None else {i: float(sig[j]) for i, j in taken.items()},
             birth_scores=None if sig is None else sig[born_idx],
             shapes=None if blob is None else {i: float(blob[j]) for i, j in taken.items()},
-            birth_shapes=None if blob is None else blob[born_idx])
+            birth_shapes=None if blob is None else blob[born_idx],
+            density=self.density.at(pred_xy), birth_density=self.density.at(births),
+            novelty={i: float(nov[j]) for i, j in taken.items()}, birth_novelty=nov[born_idx])
         self._restart(preds, recovered, velocities, feats)
         events += [TrackEvent(frame.index, "recovered", preds[i].track_id,
                               f"track {preds[i].track_id} recovered by global detection at "
@@ -549,26 +387,20 @@ class FusionTracker:
                    for i, j in recovered.items()]
         self._update_refs(events, born_idx, feats, matches)
         lap("kalman")
-        # hot-pixel evidence: the full residual on global frames, the windows only otherwise
-        if residual_map is None or is_global:
-            bad_changed = self.bad.update(raw, suppressed, dets.threshold)
-        else:
-            bad_changed = self.bad.update(raw, residual_map, self._threshold)
-        lap("defects")
         assigned = np.full(len(dets), -1, dtype=np.int64)
         for m in matches:
             assigned[m.detection] = m.track_id
         timings = timer.done()
         return FusionResult(
-            index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
+            index=frame.index, time=frame.time, tracks=tuple(mgr.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,
             features=feats, matches=tuple(matches), assigned=assigned, global_detection=is_global,
             global_reason=reason, searched=tuple(searched),
             lost=tuple(preds[i] for i in lost if i not in recovered), recover_radius=fc.recover_radius,
-            suppressed=suppressed, circle=self.circle, mask=mask, mask_changed=mask_changed,
-            horizon=self.horizon_line, horizon_updated=horizon_updated,
-            innovations=self.manager.innovations(), bad_pixels=self.bad.flagged,
-            bad_pixels_changed=bad_changed,
+            suppressed=fe.suppressed, circle=fe.circle, mask=fe.mask, mask_changed=fe.mask_changed,
+            horizon=fe.horizon, horizon_updated=fe.horizon_updated,
+            innovations=mgr.innovations(), bad_pixels=fe.bad_pixels,
+            bad_pixels_changed=fe.bad_pixels_changed,
         )
 
     # -- association ----------------------------------------------------------------------
