@@ -29,6 +29,7 @@ from scipy import ndimage
 _MAD = 1.4826  # MAD -> sigma for Gaussian data
 _Q99 = 2.3263  # 99th percentile of a unit Gaussian
 MIN_SAMPLES = 32  # a tile with fewer valid samples takes its nearest neighbour's statistics
+QUANTUM_FLOOR = 1.0  # sigma is at least this many grey levels (the data's step)
 
 
 @dataclass(frozen=True)
@@ -95,7 +96,7 @@ def tile_statistics(residual: np.ndarray, valid: np.ndarray, tile: int, quantum:
     mean = d.sum(axis=1) / m
     var = np.maximum((d * d).sum(axis=1) / m - mean * mean, 0.0)
     sigma = np.sqrt(var) / _clipped_std(clip)
-    sigma = np.maximum(sigma, max(quantum, 1e-6))  # at least one grey level
+    sigma = np.maximum(sigma, max(QUANTUM_FLOOR * quantum, 1e-6))  # the grey levels' own spread
     q99 = ordered[rows, np.maximum(np.rint(0.99 * (n - 1)).astype(np.int64), 0)]
     with np.errstate(invalid="ignore"):
         tail = (q99 - level) / sigma / _Q99
@@ -184,7 +185,7 @@ class NoiseModel:
     def _estimate(self, grids: list[tuple[np.ndarray, np.ndarray]], parts: list[np.ndarray],
                   shape: tuple[int, int]) -> NoiseEstimate:
         q = float(self.quantum or 0.0)
-        floor = max(q, 1e-6)
+        floor = max(QUANTUM_FLOOR * q, 1e-6)
         level = sigma = None
         for (lv, sg), z in zip(grids, parts):
             lv_full = upsample(fill_missing(lv, 0.0), shape, self.tile)

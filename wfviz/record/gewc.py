@@ -29,9 +29,6 @@ class GEWCRecorder(Recorder):
         log_geometry(rec, result)
         if images:
             self.image("suppressed/image", result.suppressed)
-        if result.camera_shift is not None:
-            self.scalar("registration/dx", result.camera_shift[0])
-            self.scalar("registration/dy", result.camera_shift[1])
         if result.clutter is not None:  # static clutter stage (configs/real-gewc.toml)
             static = result.clutter == 1
             rec.log("camera/clutter", rr.Points2D(

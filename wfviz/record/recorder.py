@@ -301,6 +301,7 @@ class Recorder:
         if images:
             self.image("camera/image", frame.image)
         self._log_common(result)
+        self.log_front_end(result, images)
         self.log_stages(result, images)
         self.frames_logged += 1
         self.columns.end_frame()
@@ -350,13 +351,32 @@ class Recorder:
     def log_stages(self, result: FrameResult, images: bool) -> None:
         """Tracker-specific stages; overridden by each tracker's adapter."""
 
+    def log_front_end(self, result: FrameResult, images: bool) -> None:
+        """The shared front end's noise map (``suppressed/noise``, with the images), the camera
+        motion (``registration/*``) and the sequential test's levels (``tracks/*``), for trackers
+        whose results carry them (:mod:`wfviz.front_end`)."""
+        noise = getattr(result, "noise", None)
+        if noise is not None:
+            if images:  # half precision: a smooth map, and a quarter of the raw frame's bytes
+                self.image("suppressed/noise", noise.sigma.astype(np.float16))
+            self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
+        camera = getattr(result, "camera", None)
+        if camera is not None:
+            self.scalar("registration/dx", camera.shift[0])
+            self.scalar("registration/dy", camera.shift[1])
+            self.scalar("registration/moving", 1.0 if camera.moving else 0.0)
+        th = getattr(result, "thresholds", None)
+        if th is not None:
+            self.scalar("tracks/confirm_level", th.confirm)
+
     def _log_common(self, result: FrameResult) -> None:
         rec = self.rec
         d = result.detections
         points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR)
         if len(d):  # hover values; an empty AnyValues batch only draws a warning
             extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
-                ("significance", d.significance), ("blobness", d.blobness)) if v is not None}
+                ("significance", d.significance), ("change", d.change), ("blobness", d.blobness))
+                if v is not None}
             rec.log("camera/detections", points, rr.AnyValues(
                 area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra))
         else:

@@ -44,7 +44,9 @@ from wfviz.frames import Frame
 from wfviz.front_end import FrontEnd
 from wfviz.horizon import Horizon
 from wfviz.imaging_circle import ImagingCircle
-from wfviz.track_score import DetectionDensity
+from wfviz.noise import NoiseEstimate
+from wfviz.registration import CameraState
+from wfviz.track_score import DetectionDensity, Thresholds
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackEvent, TrackManager, assign_confirmed_first
 
@@ -111,6 +113,9 @@ class FusionResult(FrameResult):
     innovations: dict[int, np.ndarray]
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
+    noise: NoiseEstimate | None = None
+    camera: CameraState | None = None
+    thresholds: Thresholds | None = None
 
 
 @dataclass
@@ -400,7 +405,8 @@ class FusionTracker:
             suppressed=fe.suppressed, circle=fe.circle, mask=fe.mask, mask_changed=fe.mask_changed,
             horizon=fe.horizon, horizon_updated=fe.horizon_updated,
             innovations=mgr.innovations(), bad_pixels=fe.bad_pixels,
-            bad_pixels_changed=fe.bad_pixels_changed,
+            bad_pixels_changed=fe.bad_pixels_changed, noise=fe.noise, camera=fe.camera,
+            thresholds=mgr.thresholds,
         )
 
     # -- association ----------------------------------------------------------------------

@@ -16,7 +16,7 @@ from wfviz.horizon import Horizon
 from wfviz.imaging_circle import ImagingCircle
 from wfviz.noise import NoiseEstimate
 from wfviz.registration import CameraState
-from wfviz.track_score import DetectionDensity
+from wfviz.track_score import DetectionDensity, Thresholds
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
 
@@ -50,6 +50,7 @@ class GEWCResult(FrameResult):
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
     noise: NoiseEstimate | None = None  # detection.mode = "cfar"
     camera: CameraState | None = None
+    thresholds: Thresholds | None = None  # of the sequential test (tracking.confirm = "sprt")
 
 
 class GEWCTracker:
@@ -120,7 +121,7 @@ class GEWCTracker:
             measurements=tuple(meas.values()), innovations=self.manager.innovations(),
             bad_pixels=fe.bad_pixels, bad_pixels_changed=fe.bad_pixels_changed,
             camera_shift=None if fe.camera is None else fe.camera.shift,
-            clutter=labels, noise=fe.noise, camera=fe.camera,
+            clutter=labels, noise=fe.noise, camera=fe.camera, thresholds=self.manager.thresholds,
         )
 
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
