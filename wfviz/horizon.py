@@ -63,10 +63,11 @@ BRIGHT_RATIO_HIGH = 1.5
 #: (``horizon.edge_weight``).
 EDGE_WEIGHT = 0.25
 #: Path costs per column, in evidence units (evidence is 0..1 per column): a change of one
-#: working row, and a jump of any size (a building wall, a tree trunk)
-#: (``horizon.slope_cost``, ``horizon.jump_cost``).
+#: working row, and a jump of any size (a building wall, a tree trunk): a segment between two
+#: jumps must gain 2·COST_JUMP, i.e. be at least 4 working columns of full evidence, so masts,
+#: stars and noise specks are skipped (``horizon.slope_cost``, ``horizon.jump_cost``).
 COST_1 = 0.05
-COST_JUMP = 2.5
+COST_JUMP = 2.0
 #: A column supports the line when its path evidence reaches SUPPORT_EVIDENCE
 #: (``horizon.support_evidence``).
 SUPPORT_EVIDENCE = 0.5
