@@ -272,7 +272,8 @@ share of the ground pixels outside the sky's 5-95 % grey range or above its 95th
 texture (clipped to [0, 1]; a terrain-only view has smooth patches with a local "horizon", but no
 line splits it into sky and ground). A horizon is used (`horizon_confident`, search regions and
 zones) from 0.5. `HorizonTracker` blends each estimate with the previous one where they agree
-within 4 px; its confidence is 0.5·agreement·previous + 0.5·new. `estimate_imaging_circle`'s
+within 4 px; its confidence is new + 0.5·agreement·(previous − new), and a failed estimate after
+a confident one keeps the previous rows at 0.5·(previous + new). `estimate_imaging_circle`'s
 confidence is the product of four ramps from its rejection limits to clearly good values: rim fit
 RMS 1.5 → 0.5 px, inlier share 0.7 → 0.95, contrast 10 → 50 corner-noise σ (log), angular
 coverage of the inlier rim points 15 → 50 % of 36 sectors; a configured circle has confidence 1.

@@ -176,13 +176,15 @@ def test_tracker_confidence_follows_agreement_and_keeps_the_confident_rows():
     assert not horizon_confident(last)                            # ... but not for ever
 
 
-def test_blend_of_disagreeing_lines_halves_the_confidence():
+def test_blend_smooths_where_the_lines_agree_and_follows_a_moved_line():
     a = Horizon(np.full(50, 20.0), 0.9, 0.9, 1.0)
-    b = Horizon(np.full(50, 40.0), 0.9, 0.9, 1.0)
-    c = blend(a, b, 0.5)
-    assert c.confidence == pytest.approx(0.45) and np.all(c.rows == 40.0)
-    d = blend(a, Horizon(np.full(50, 21.0), 0.9, 0.9, 1.0), 0.5)
-    assert d.confidence == pytest.approx(0.9) and np.allclose(d.rows, 20.5)
+    moved = blend(a, Horizon(np.full(50, 40.0), 0.7, 0.7, 1.0), 0.5)     # the camera panned
+    assert moved.confidence == pytest.approx(0.7) and np.all(moved.rows == 40.0)
+    same = blend(a, Horizon(np.full(50, 21.0), 0.7, 0.7, 1.0), 0.5)      # agrees everywhere
+    assert same.confidence == pytest.approx(0.8) and np.allclose(same.rows, 20.5)
+    failed = blend(a, Horizon(np.full(50, 35.0), 0.1, 0.1, 0.2), 0.5)    # not confident
+    assert failed.confidence == pytest.approx(0.5) and np.all(failed.rows == 20.0)
+    assert blend(a, None, 0.5) is a
 
 
 def test_an_unconfident_horizon_does_not_cut_the_search_region():

@@ -566,33 +566,39 @@ def blend(old: Horizon | None, new: Horizon | None, smoothing: float,
     """Combine the previous horizon with a new estimate.
 
     Agreement a = share of the columns where both have a row that differ by at most
-    ``agree_px``. Confidence = smoothing · a · old.confidence + (1 - smoothing) ·
-    new.confidence: the previous estimate counts only as far as the new one agrees with it.
-    Rows: when the new estimate is confident, or the previous one was not, agreeing columns
-    are blended (weight ``smoothing`` on the previous row) and the others take the new row;
-    otherwise (a failed estimate after a confident one) the previous rows are kept.
+    ``agree_px``; s = ``smoothing``.
+
+    - A new estimate that is confident, or follows one that was not: rows from the new
+      estimate, blended with the previous ones (weight s) in the agreeing columns; confidence
+      new + a·s·(old - new), i.e. smoothed in time as far as the lines agree, the new
+      estimate's own where they do not (a panning camera, a changed scene).
+    - A failed estimate (not confident) after a confident one: the previous rows are kept,
+      confidence s·old + (1 - s)·new, so one failure keeps the horizon and repeated failures
+      let it fade below ``threshold``.
+    - No new estimate (None): the previous horizon unchanged.
     """
     if new is None:
         return old
     if old is None:
         return new
+    if new.confidence < threshold <= old.confidence:
+        conf = smoothing * old.confidence + (1.0 - smoothing) * new.confidence
+        return Horizon(old.rows, conf, new.support, new.separation)
     both = np.isfinite(old.rows) & np.isfinite(new.rows)
     close = both & (np.abs(np.where(both, old.rows - new.rows, 0.0)) <= agree_px)
     agree = float(close.sum() / both.sum()) if both.any() else 0.0
-    conf = smoothing * agree * old.confidence + (1.0 - smoothing) * new.confidence
-    if new.confidence >= threshold or old.confidence < threshold:
-        rows = new.rows.copy()
-        rows[close] = smoothing * old.rows[close] + (1.0 - smoothing) * new.rows[close]
-        return Horizon(rows, conf, new.support, new.separation)
-    return Horizon(old.rows, conf, new.support, new.separation)
+    conf = new.confidence + agree * smoothing * (old.confidence - new.confidence)
+    rows = new.rows.copy()
+    rows[close] = smoothing * old.rows[close] + (1.0 - smoothing) * new.rows[close]
+    return Horizon(rows, conf, new.support, new.separation)
 
 
 class HorizonTracker:
     """Re-estimates the horizon every ``cfg.every`` frames and smooths it over time
     (:func:`blend` with weight ``cfg.smoothing`` on the previous horizon): the confidence is
-    an exponential average of the estimates' confidences in which the previous value counts
-    only as far as the new line agrees with the previous one; a failed estimate (None, or
-    not confident after a confident one) keeps the previous rows."""
+    the new estimate's, smoothed with the previous value as far as the two lines agree; a
+    failed estimate (None, or not confident after a confident one) keeps the previous rows,
+    and repeated failures let its confidence fade."""
 
     def __init__(self, cfg: HorizonConfig) -> None:
         self.cfg = cfg
