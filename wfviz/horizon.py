@@ -1,4 +1,17 @@
-"""Sky-ground line by multi-direction maximum gradient (GEWC paper, eqs. 2-3)."""
+"""Sky-ground line with a confidence (GEWC paper: Zhang Shuai et al., Acta Photonica Sinica
+47(11), 2018, §1 steps 1-2, eqs. 2-3; the multi-direction maximum gradient of eq. 2 places the
+line to a pixel).
+
+The paper's two constraints are the evidence here. (a) A cloud edge has low grey variance on
+both sides, the true horizon has a textured ground side: a boundary hypothesis between rows
+y - 1 and y of a column is supported when the sky window above it is smooth (as smooth as the
+frame's smoothest tenth at that grey level) and the ground below is several times rougher, or
+much brighter, and stays so for GROUND_ROWS rows. (b) Scattered clutter does not form a
+continuous line: one path y(x) through every imaging column is found by dynamic programming
+(smoothness costs, and a fixed cost for a vertical jump at a wall), and the confidence counts
+the columns where that path has the evidence. All work is on a working image area-averaged to
+about WORK_SIZE px, in units of the frame's own texture, so 8- and 16-bit data are alike.
+"""
 
 from __future__ import annotations
 
@@ -9,12 +22,86 @@ import numpy as np
 
 from wfviz.config import HorizonConfig
 
+#: Working resolution: the frame is area-averaged by f = ceil(max(h, w) / WORK_SIZE)
+#: (suggested config name ``horizon.work_size``).
+WORK_SIZE = 320
+#: Rows (K) and columns (M) of the sky and ground windows, working pixels
+#: (``horizon.window_rows`` / ``horizon.window_cols``).
+WINDOW_ROWS = 4
+WINDOW_COLS = 3
+#: Rows below the line (working pixels) over which the ground must stay rough or bright
+#: (``horizon.ground_rows``).
+GROUND_ROWS = 12
+#: Sky window's texture in units of the texture floor at its grey level: full evidence up to
+#: SKY_SMOOTH, none from SKY_ROUGH (``horizon.sky_smooth`` / ``horizon.sky_rough``).
+SKY_SMOOTH = 2.0
+SKY_ROUGH = 4.0
+#: Textured ground: ground/sky texture ratio, log ramp from RATIO_LOW (0) to RATIO_HIGH (1)
+#: (``horizon.ratio_low`` / ``horizon.ratio_high``), and the share of pixels rougher than
+#: SKY_ROUGH floors over GROUND_ROWS, ramp GROUND_LOW to GROUND_HIGH (``horizon.ground_share``).
+RATIO_LOW = 2.0
+RATIO_HIGH = 6.0
+GROUND_LOW = 0.25
+GROUND_HIGH = 0.6
+#: Brighter ground: the grey-level step from the sky window to the ground window beyond the
+#: sky's own brightening trend, in units of the sky window's texture, log ramp STEP_LOW to
+#: STEP_HIGH (``horizon.step_ratio``), and the share of that step the GROUND_ROWS rows below
+#: keep on average, ramp STAY_LOW to STAY_HIGH (``horizon.step_stays``).
+STEP_LOW = 20.0
+STEP_HIGH = 80.0
+STAY_LOW = 0.4
+STAY_HIGH = 0.7
+#: ... and at least TREND_LOW (none) to TREND_HIGH (full) times the sky's own rise over the
+#: same distance (``horizon.step_trend``): a steepening sky gradient is not a step.
+TREND_LOW = 2.0
+TREND_HIGH = 4.0
+#: ... and the ground window at least as rough as the sky window: ratio ramp
+#: BRIGHT_RATIO_LOW (none) to BRIGHT_RATIO_HIGH (full) (``horizon.bright_texture``).
+BRIGHT_RATIO_LOW = 1.0
+BRIGHT_RATIO_HIGH = 1.5
+#: Share of the evidence that depends on the line sitting on the local grey-level step
+#: (``horizon.edge_weight``).
+EDGE_WEIGHT = 0.25
+#: Path costs per column, in evidence units (evidence is 0..1 per column): a change of one
+#: working row, and a jump of any size (a building wall, a tree trunk): a segment between two
+#: jumps must gain 2·COST_JUMP, i.e. be at least 4 working columns of full evidence, so masts,
+#: stars and noise specks are skipped (``horizon.slope_cost``, ``horizon.jump_cost``).
+COST_1 = 0.05
+COST_JUMP = 2.0
+#: A column supports the line when its path evidence reaches SUPPORT_EVIDENCE
+#: (``horizon.support_evidence``).
+SUPPORT_EVIDENCE = 0.5
+#: Regions above and below the line are distinct (1) when their median textures differ by
+#: the factor SEPARATION_RATIO, or when SEPARATION_FULL of the ground lies outside the sky's
+#: grey-level and texture range (SEPARATION_NULL: what one region split in two gives)
+#: (``horizon.separation_ratio``, ``horizon.separation_share``).
+SEPARATION_RATIO = 2.0
+SEPARATION_NULL = 0.15
+SEPARATION_FULL = 0.6
+#: Confidence at or above which a horizon is used to split sky from ground
+#: (``horizon.confidence_min``).
+CONFIDENT = 0.5
+#: Tracker: a column agrees with the previous horizon within AGREE_PX px (``horizon.agree_px``).
+AGREE_PX = 4.0
+
+_D2 = np.array([1.0, -2.0, 1.0], np.float32)  # second difference
+_SKY_END = 1  # the sky window ends this many rows above row y (one mixed row allowed)
+
 
 @dataclass(frozen=True)
 class Horizon:
-    """Horizon row for every column (NaN where the column has no horizon); sky is above."""
+    """Horizon row for every column (NaN where the column has no horizon); sky is above.
+
+    ``confidence`` = ``support`` · ``separation`` in [0, 1] (see :func:`find_horizon`):
+    ``support`` is the share of imaging columns where the line has local evidence,
+    ``separation`` how distinct the regions above and below are. A horizon built by hand
+    (``Horizon(rows)``) is trusted: all three are 1.
+    """
 
     rows: np.ndarray
+    confidence: float = 1.0
+    support: float = 1.0
+    separation: float = 1.0
 
     def polyline(self, step: int = 4) -> np.ndarray:
         """(N, 2) array of (x, y) points along the horizon, every ``step`` columns."""
@@ -23,6 +110,11 @@ class Horizon:
             return np.zeros((0, 2), dtype=np.float32)
         pick = np.unique(np.concatenate([xs[::step], xs[-1:]]))
         return np.column_stack([pick, self.rows[pick]]).astype(np.float32)
+
+
+def horizon_confident(h: Horizon | None, threshold: float = CONFIDENT) -> bool:
+    """True when ``h`` exists and its confidence reaches ``threshold``."""
+    return h is not None and h.confidence >= threshold
 
 
 def max_gradient(image: np.ndarray, step: int) -> np.ndarray:
@@ -68,65 +160,368 @@ def noise_sigma(image: np.ndarray, valid: np.ndarray | None = None) -> float:
     return max(1.4826 * _median_abs(d) / np.sqrt(2.0), 1e-6)
 
 
+def grey_step(image: np.ndarray) -> float:
+    """Step between an integer image's grey levels (gcd of the gaps between the values present,
+    from every other row and column); 0 for float data or more than 16 bits."""
+    if image.dtype.kind not in "iu" or image.itemsize > 2:
+        return 0.0
+    sub = image[::2, ::2]
+    if sub.dtype.kind == "i":
+        sub = sub.astype(np.int64) - int(sub.min())
+    present = np.nonzero(np.bincount(sub.ravel()))[0]
+    if present.size < 2:
+        return 1.0
+    return float(np.gcd.reduce(np.diff(present)))
+
+
+def _downsample(image: np.ndarray, valid: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:
+    """Area mean of ``factor`` × ``factor`` blocks (float32); a block is valid when all its
+    pixels are."""
+    if factor == 1:
+        return image.astype(np.float32, copy=False), valid.astype(bool, copy=False)
+    h, w = (image.shape[0] // factor) * factor, (image.shape[1] // factor) * factor
+    size = (w // factor, h // factor)
+    src = image[:h, :w]
+    if src.dtype not in (np.uint8, np.uint16, np.float32):
+        src = src.astype(np.float32)
+    small = cv2.resize(src, size, interpolation=cv2.INTER_AREA)
+    ok = cv2.resize(valid[:h, :w].astype(np.uint8) * 255, size, interpolation=cv2.INTER_AREA) == 255
+    return small.astype(np.float32, copy=False), ok
+
+
+def _erode(mask: np.ndarray, kw: int, kh: int) -> np.ndarray:
+    return cv2.erode(mask.astype(np.uint8), np.ones((kh, kw), np.uint8),
+                     borderType=cv2.BORDER_CONSTANT, borderValue=0) > 0
+
+
+def _rows_box(a: np.ndarray, rows: int, cols: int) -> np.ndarray:
+    """Mean of ``a`` over rows [y, y + rows) and columns x ± cols // 2 (zero outside), float32."""
+    return cv2.boxFilter(a, cv2.CV_32F, (cols, rows), anchor=(cols // 2, 0), normalize=True,
+                         borderType=cv2.BORDER_CONSTANT)
+
+
+def _shift(a: np.ndarray, dy: int, fill: float = 0.0) -> np.ndarray:
+    """out[y] = a[y + dy]; ``fill`` where that row does not exist."""
+    out = np.full_like(a, fill)
+    h = a.shape[0]
+    if dy >= 0:
+        out[: h - dy] = a[dy:]
+    else:
+        out[-dy:] = a[: h + dy]
+    return out
+
+
+def _ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """0 at ``lo``, 1 at ``hi``, linear between (float32; NaN stays NaN)."""
+    r = x * np.float32(1.0 / (hi - lo))
+    r -= np.float32(lo / (hi - lo))
+    return np.clip(r, 0.0, 1.0, out=r)
+
+
+def _log_ramp(x: np.ndarray, lo: float, hi: float) -> np.ndarray:
+    """ramp(log x; log lo, log hi), float32 (x <= 0 -> 0)."""
+    r = cv2.log(np.maximum(x, np.float32(1e-20)))
+    return _ramp(r, float(np.log(lo)), float(np.log(hi)))
+
+
+def texture_floor(tex: np.ndarray, level: np.ndarray, base: float, bins: int = 8
+                  ) -> tuple[np.ndarray, np.ndarray]:
+    """Texture floor as a function of grey level: (level centres, floors), non-decreasing.
+
+    The windows are split into ``bins`` equally populated grey-level classes; a class's floor
+    is the 10th percentile of its windows' texture (its smoothest tenth), at least ``base``;
+    the floors are made non-decreasing with level (shot noise and gain non-uniformity grow
+    with the signal), so a bright sky near the horizon is judged against its own noise.
+    """
+    if tex.size < bins * 8:
+        v = float(np.partition(tex, tex.size // 10)[tex.size // 10]) if tex.size else base
+        return np.array([0.0], np.float32), np.array([max(v, base)], np.float32)
+    order = np.argsort(level, kind="stable")
+    t, lv = tex[order], level[order]
+    parts = np.array_split(np.arange(t.size), bins)
+    centres = np.array([lv[p[p.size // 2]] for p in parts], np.float32)
+    floors = np.array([max(float(np.partition(t[p], p.size // 10)[p.size // 10]), base)
+                       for p in parts], np.float32)
+    return centres, np.maximum.accumulate(floors)
+
+
+@dataclass(frozen=True)
+class BoundaryEvidence:
+    """Per working pixel (y, x): ``evidence`` in [0, 1] that the sky-ground boundary lies
+    between working rows y - 1 (sky) and y (ground), NaN where the windows leave the imaging
+    area; ``texture`` the K × M window texture starting at row y and ``level`` the median-
+    filtered frame (both for the region statistics); ``floor`` the lowest texture floor."""
+
+    evidence: np.ndarray
+    texture: np.ndarray
+    level: np.ndarray
+    floor: float
+
+
+def boundary_evidence(small: np.ndarray, valid: np.ndarray, quantum: float = 0.0) -> BoundaryEvidence:
+    """Evidence of a sky-ground boundary at each working pixel (constraint (a) of eq. 3).
+
+    g = 3×3 median of the working frame (stars, hot pixels and targets are not texture).
+    Texture T = min(mean |g(x-1) - 2g + g(x+1)|, mean |g(y-1) - 2g + g(y+1)|) over a K × M
+    window (K = WINDOW_ROWS, M = WINDOW_COLS): texture in both directions, so column stripes
+    (fixed-pattern noise), vertical sky gradients and a straight horizontal edge are not
+    texture, while ground is. τ(level) is the texture floor of :func:`texture_floor` (at least
+    half a grey step ``quantum``). For a boundary between rows y - 1 and y, with the sky window
+    S = rows [y-K-1, y-2] (one mixed row allowed) and the ground window G = rows [y, y+K):
+
+    - sky = 1 - ramp(T_S / τ(level_S); SKY_SMOOTH, SKY_ROUGH);
+    - textured = ramp(log(T_G / max(T_S, τ)); log RATIO_LOW, log RATIO_HIGH) ·
+      ramp(share of the pixels of rows [y, y+L) rougher than SKY_ROUGH · τ_min; GROUND_LOW,
+      GROUND_HIGH), L = GROUND_ROWS, τ_min the lowest floor;
+    - bright = ramp(log(step / max(T_S, τ)); log STEP_LOW, log STEP_HIGH) ·
+      ramp(kept; STAY_LOW, STAY_HIGH) · ramp(step / max(trend, T_S, τ); TREND_LOW, TREND_HIGH)
+      · ramp(T_G / max(T_S, τ); BRIGHT_RATIO_LOW, BRIGHT_RATIO_HIGH), where rise = mean(G) -
+      mean(S), trend = the sky's own rise over that distance (from the window above S,
+      positive part), step = rise - trend, kept = (mean(rows [y, y+L)) - mean(S)) / rise;
+    - edge = E / max(E over ± (K + 1) rows), E = |mean(rows y, y+1) - mean(rows y-2, y-1)|;
+    - evidence = sky · max(textured, bright) · (1 - EDGE_WEIGHT + EDGE_WEIGHT · edge).
+
+    A cloud edge is smooth on both sides and its cloud does not stay rough or bright below;
+    terrain under terrain fails the sky term; a smooth, steepening sky gradient has no step
+    beyond its trend; a bright sky band under darker clouds is smoother than they are.
+    """
+    k, m, L = WINDOW_ROWS, WINDOW_COLS, GROUND_ROWS
+    f = small.astype(np.float32, copy=False)
+    h, w = f.shape
+    g = cv2.medianBlur(f, 3)
+    ok = _erode(valid, 3, 3)
+    okf = ok.astype(np.float32)
+    th = np.abs(cv2.filter2D(g, -1, _D2.reshape(1, 3), borderType=cv2.BORDER_REPLICATE))
+    tv = np.abs(cv2.filter2D(g, -1, _D2.reshape(3, 1), borderType=cv2.BORDER_REPLICATE))
+    th *= okf
+    tv *= okf
+    full = _rows_box(okf, k, m) > 0.999
+    tex = np.minimum(_rows_box(th, k, m), _rows_box(tv, k, m))
+    gok = g * okf
+    lvl = _rows_box(gok, k, m)
+    sub = (slice(None, None, 4), slice(None, None, 4))
+    sel = full[sub]
+    okv = g[sub][ok[sub]]
+    base = max(0.5 * quantum, 1e-4 * float(abs(np.median(okv))) if okv.size else 0.0, 1e-6)
+    centres, floors = texture_floor(tex[sub][sel], lvl[sub][sel], base)
+    floor_min = float(floors[0])
+    ks = k + _SKY_END
+    ls, t_sky = _shift(lvl, -ks), _shift(tex, -ks)
+    t_gnd = tex
+    if centres.size > 1 and centres[-1] > centres[0]:
+        lut = np.interp(np.linspace(centres[0], centres[-1], 256), centres, floors).astype(np.float32)
+        idx = (ls - centres[0]) * np.float32(255.0 / (centres[-1] - centres[0]))
+        sky_floor = lut[np.clip(idx, 0, 255).astype(np.intp)]
+    else:
+        sky_floor = np.full_like(ls, floors[0])
+    ok_all = _shift(full, -ks, False) & full & valid
+    # rows [y, y+L): share of rough pixels and mean level, over the valid pixels there
+    tpix = np.minimum(cv2.blur(th, (m, 1)), cv2.blur(tv, (m, 1)))
+    rough = ((tpix > SKY_ROUGH * floor_min) & ok).astype(np.float32)
+    n_long = _rows_box(okf, L, m)
+    ok_all &= n_long * np.float32(L * m) >= k * m - 0.5
+    inv_n = 1.0 / np.maximum(n_long, np.float32(1e-6))
+    share = _rows_box(rough, L, m) * inv_n
+    lvl_long = _rows_box(gok, L, m) * inv_n
+    sky_t = np.maximum(t_sky, sky_floor)
+    inv_sky = 1.0 / sky_t
+    ratio = t_gnd * inv_sky
+    sky = 1.0 - _ramp(t_sky / sky_floor, SKY_SMOOTH, SKY_ROUGH)
+    textured = _log_ramp(ratio, RATIO_LOW, RATIO_HIGH)
+    textured *= _ramp(share, GROUND_LOW, GROUND_HIGH)
+    trend = np.maximum(ls - _shift(lvl, -ks - k, np.inf), 0.0)   # no window above: no trend
+    trend *= np.float32(ks / k)
+    rise = lvl - ls
+    step = rise - trend
+    kept = (lvl_long - ls) / np.maximum(rise, np.float32(1e-12))
+    bright = _log_ramp(step * inv_sky, STEP_LOW, STEP_HIGH)
+    bright *= _ramp(kept, STAY_LOW, STAY_HIGH)
+    bright *= _ramp(step / np.maximum(trend, sky_t), TREND_LOW, TREND_HIGH)
+    bright *= _ramp(ratio, BRIGHT_RATIO_LOW, BRIGHT_RATIO_HIGH)
+    rowm = cv2.blur(f, (m, 1))
+    two = rowm + _shift(rowm, 1)
+    grad = np.abs(two - _shift(two, -2))
+    grad[:2] = 0.0
+    grad[-1:] = 0.0
+    peak = cv2.dilate(grad, np.ones((2 * k + 3, 1), np.uint8))
+    edge = grad / np.maximum(peak, np.float32(1e-12))
+    ev = np.maximum(textured, bright)
+    ev *= sky
+    ev *= np.float32(1.0 - EDGE_WEIGHT) + np.float32(EDGE_WEIGHT) * edge
+    ev[~ok_all] = np.nan
+    return BoundaryEvidence(ev, tex, g, floor_min)
+
+
+def best_path(evidence: np.ndarray) -> np.ndarray:
+    """Row per column maximising Σ evidence - Σ transition costs (dynamic programming).
+
+    Moving 0 or 1 row between neighbouring columns costs 0 or COST_1; any larger move (a
+    wall, or a line steeper than 45°) costs COST_JUMP. NaN evidence (outside the imaging
+    area) is forbidden; a column without any allowed row is skipped (its neighbours are
+    joined) and gets -1. One vectorised step per column (a loop over columns only).
+    """
+    h, w = evidence.shape
+    allowed = np.isfinite(evidence)
+    cols = np.nonzero(allowed.any(axis=0))[0]
+    path = np.full(w, -1, dtype=np.int64)
+    if cols.size == 0:
+        return path
+    et = np.ascontiguousarray(np.where(allowed, evidence, np.float32(-1e6)).T[cols], dtype=np.float32)
+    n = cols.size
+    scores = np.full((n, h + 2), -np.inf, dtype=np.float32)   # a -inf guard row either side
+    m1 = np.empty(h, np.float32)
+    scores[0, 1: h + 1] = et[0]
+    c1, cj = np.float32(COST_1), np.float32(COST_JUMP)
+    vmax, top = np.maximum, np.maximum.reduce
+    for i in range(1, n):
+        p = scores[i - 1]
+        vmax(p[0:h], p[2: h + 2], out=m1)
+        m1 -= c1
+        vmax(m1, p[1: h + 1], out=m1)
+        vmax(m1, top(p) - cj, out=m1)
+        np.add(m1, et[i], out=scores[i, 1: h + 1])
+    # backtrack: the predecessor is y, y ± 1 or (a jump) the previous column's best row
+    y = int(scores[-1].argmax()) - 1
+    out = np.empty(n, dtype=np.int64)
+    out[-1] = y
+    for i in range(n - 1, 0, -1):
+        p = scores[i - 1]
+        cand, val = y, p[y + 1]
+        for d in (-1, 1):
+            v = p[y + 1 + d] - c1
+            if v > val:
+                cand, val = y + d, v
+        j = int(p.argmax())
+        if p[j] - cj > val:
+            cand = j - 1
+        y = cand
+        out[i - 1] = y
+    path[cols] = out
+    return path
+
+
+def _refine(image: np.ndarray, valid: np.ndarray, coarse: np.ndarray, factor: int,
+            cfg: HorizonConfig) -> np.ndarray:
+    """Sub-pixel row per column near ``coarse`` (full-resolution boundary rows, NaN = none).
+
+    Gmax (eq. 2, step n = ``cfg.step``, on a ``cfg.smooth`` box-filtered frame) is evaluated
+    on a band of rows centred on the coarse boundary (± ``factor`` + n + ``cfg.smooth`` // 2);
+    the line is the response-weighted mean row of the topmost run of rows whose Gmax reaches
+    half the band's maximum (a step between rows b - 1 and b gives a run centred on b - 0.5).
+    Columns without any response keep the coarse row.
+    """
+    h, w = image.shape
+    cols = np.nonzero(np.isfinite(coarse))[0]
+    out = np.full(w, np.nan)
+    if cols.size == 0:
+        return out
+    n = cfg.step
+    sm = max(1, cfg.smooth)
+    half = factor + n + sm // 2
+    off = np.arange(-half, half + 1)
+    base = np.floor(coarse[cols]).astype(np.int64) + 1          # row b for a boundary at b - 0.5
+    lo = max(0, int(base.min()) - half - n - sm)
+    hi = min(h, int(base.max()) + half + n + sm + 1)
+    crop = image[lo:hi]
+    if crop.dtype not in (np.uint8, np.uint16, np.float32):
+        crop = crop.astype(np.float32)
+    f = cv2.blur(crop, (sm, sm)) if sm > 1 else crop
+    f = f.astype(np.float32, copy=False)
+    hh = f.shape[0]
+    rr = np.clip(base[None, :] + off[:, None] - lo, n, hh - 1 - n)
+    cc = np.broadcast_to(cols[None, :], rr.shape)
+    cl, cr = np.clip(cc - n, 0, w - 1), np.clip(cc + n, 0, w - 1)
+    g = np.abs(f[rr + n, cc] - f[rr - n, cc])
+    np.maximum(g, np.abs(f[rr - n, cr] - f[rr + n, cl]), out=g)
+    np.maximum(g, np.abs(f[rr, cr] - f[rr, cl]), out=g)
+    np.maximum(g, np.abs(f[rr + n, cr] - f[rr - n, cl]), out=g)
+    g *= valid[rr + lo, cc]
+    strong = g >= 0.5 * g.max(axis=0)[None, :]
+    idx = np.arange(off.size)[:, None]
+    first = np.argmax(strong, axis=0)[None, :]
+    after = (idx > first) & ~strong
+    stop = np.where(after.any(axis=0), np.argmax(after, axis=0), off.size)[None, :]
+    wgt = np.where((idx >= first) & (idx < stop), g, 0.0)
+    tot = wgt.sum(axis=0)
+    res = coarse[cols].copy()
+    good = tot > 0
+    res[good] = ((wgt * (rr + lo)).sum(axis=0) / np.maximum(tot, 1e-12))[good]
+    out[cols] = res
+    return out
+
+
+def _separation(ev: BoundaryEvidence, path: np.ndarray) -> float:
+    """How distinct the regions above (sky) and below (ground) the path are, in [0, 1].
+
+    The larger of two measures, on every other working pixel:
+    - texture: ramp(log(median ground texture / median sky texture); 0, log SEPARATION_RATIO);
+    - range: ramp(U; SEPARATION_NULL, SEPARATION_FULL), U = share of the ground pixels unlike
+      any sky: grey level outside the sky's 5th-95th percentiles or texture above the sky's
+      95th percentile (two regions drawn from one distribution give U ≈ 0.15).
+    """
+    k = WINDOW_ROWS
+    tex, lvl = ev.texture[::2, ::2], ev.level[::2, ::2]
+    ok = np.isfinite(ev.evidence[::2, ::2])
+    p = path[::2][None, : tex.shape[1]]
+    yy = np.arange(0, ev.texture.shape[0], 2)[:, None]
+    has = p >= 0
+    above = ok & has & (yy < p - k - _SKY_END)
+    below = ok & has & (yy >= p)
+    if above.sum() < 16 or below.sum() < 16:
+        return 0.0
+    ta, la = tex[above], lvl[above]
+    tb, lb = tex[below], lvl[below]
+    ratio = float(np.median(tb) / max(float(np.median(ta)), ev.floor))
+    by_texture = np.clip(np.log(max(ratio, 1e-6)) / np.log(SEPARATION_RATIO), 0.0, 1.0)
+    lo, hi = np.percentile(la, [5, 95])
+    rough = max(float(np.percentile(ta, 95)), ev.floor)
+    unlike = float(np.mean((lb < lo) | (lb > hi) | (tb > rough)))
+    by_range = np.clip((unlike - SEPARATION_NULL) / (SEPARATION_FULL - SEPARATION_NULL), 0.0, 1.0)
+    return float(max(by_texture, by_range))
+
+
 def find_horizon(image: np.ndarray, valid: np.ndarray, cfg: HorizonConfig) -> Horizon | None:
     """Detect the sky-ground line in ``image`` inside ``valid`` (the imaging area).
 
-    Candidate per column: the strongest Gmax point whose ground side (below) has a local
-    standard deviation of at least ``ground_std_min`` noise sigmas (constraint (a), the
-    V_g-Th test that rejects cloud edges). The candidates are fitted by a robust polynomial;
-    the fit is accepted when the inliers' position std is at most ``position_std_max`` px
-    (constraint (b), V_L-Th) and they cover at least ``min_coverage`` of the valid columns.
-    The result follows the measured skyline where it agrees with the fit or stands up to
-    ``max_rise`` px above it, and the fit elsewhere across the imaging area.
+    1. Working image: area mean of f × f blocks, f = ceil(max(h, w) / WORK_SIZE).
+    2. Evidence per working pixel (:func:`boundary_evidence`, constraint (a) of eq. 3).
+    3. One path y(x) across the imaging columns maximising the evidence less the transition
+       costs (:func:`best_path`; constraint (b): clutter does not form a continuous line).
+    4. Rows at full resolution: the Gmax (eq. 2) centroid near the path (:func:`_refine`).
+
+    Confidence = support · separation. support = share of the path's columns (working
+    columns with at least one allowed row) whose evidence reaches SUPPORT_EVIDENCE;
+    separation (:func:`_separation`) = how distinct the regions above and below the path are
+    (terrain-only views have locally sky-like smooth patches, but no line splits them into
+    two different regions). Rows are given for every column of the imaging area, confident
+    or not (columns too near the area's side for the windows take the nearest path row).
+    None when the imaging area has no place for the windows.
     """
     h, w = image.shape
-    f = image.astype(np.float32, copy=False)
-    sigma = noise_sigma(image, valid)
-    smooth = cv2.blur(f, (cfg.smooth, cfg.smooth)) if cfg.smooth > 1 else f
-    g = max_gradient(smooth, cfg.step)
-    pad = cfg.step + cfg.smooth // 2 + 1
-    inner = cv2.erode(valid.astype(np.uint8), np.ones((2 * pad + 1, 2 * pad + 1), np.uint8)) > 0
-    win = cfg.variance_window
-    mean = cv2.blur(f, (win, win))
-    std = np.sqrt(np.maximum(cv2.blur(f * f, (win, win)) - mean * mean, 0.0))
-    below = np.full_like(std, 0.0)
-    off = win // 2 + cfg.step + 1
-    below[: h - off] = std[off:]
-    g[~inner | (below < cfg.ground_std_min * sigma)] = 0.0
-    # topmost strong edge per column: ground-side texture below it must not win
-    peak = g.max(axis=0)
-    first = np.argmax(g >= 0.5 * peak[None, :], axis=0)
-    cols = np.nonzero(peak > 8.0 * sigma / cfg.smooth)[0]
-    # sub-pixel: centroid of the edge response over the rows the first strong edge spans
-    span = 2 * cfg.step + cfg.smooth
-    rr = np.clip(first[cols][None, :] + np.arange(span + 1)[:, None], 0, h - 1)
-    resp = g[rr, cols[None, :]]
-    resp = np.where(resp >= 0.5 * peak[cols][None, :], resp, 0.0)
-    rows = np.zeros(w)
-    rows[cols] = (resp * rr).sum(axis=0) / np.maximum(resp.sum(axis=0), 1e-12)
-    valid_cols = int(inner.any(axis=0).sum())
-    if valid_cols == 0 or cols.size < max(8, cfg.min_coverage * valid_cols):
+    factor = max(1, int(np.ceil(max(h, w) / WORK_SIZE)))
+    small, ok = _downsample(image, valid, factor)
+    if min(small.shape) < 2 * WINDOW_ROWS + GROUND_ROWS or not ok.any():
         return None
-    x, y = cols.astype(np.float64), rows[cols]
-    keep = np.ones(x.size, dtype=bool)
-    scale = max(w / 2.0, 1.0)
-    for _ in range(4):
-        if keep.sum() <= cfg.degree + 1:
-            return None
-        coef = np.polyfit((x[keep] - scale) / scale, y[keep], cfg.degree)
-        resid = y - np.polyval(coef, (x - scale) / scale)
-        mad = 1.4826 * float(np.median(np.abs(resid[keep])))
-        keep = np.abs(resid) <= max(3.0 * mad, 2.0)
-    if keep.sum() < cfg.min_coverage * valid_cols or float(np.std(resid[keep])) > cfg.position_std_max:
+    ev = boundary_evidence(small, ok, grey_step(image) / factor**2)
+    path = best_path(ev.evidence)
+    cols = np.nonzero(path >= 0)[0]
+    if cols.size == 0:
         return None
-    # the fit fills gaps and reaches the rim; measured skyline points are kept where they
-    # agree with it or stand above it (buildings, trees: up to max_rise px)
-    span = np.nonzero(valid.any(axis=0))[0]
-    out = np.full(w, np.nan)
-    out[span] = np.polyval(coef, (span - scale) / scale)
-    use = keep | ((resid < 0) & (resid > -cfg.max_rise))
-    out[cols[use]] = y[use]
-    return Horizon(out)
+    e_path = ev.evidence[path[cols], cols]
+    support = float(np.mean(e_path >= SUPPORT_EVIDENCE))
+    separation = _separation(ev, path) if support > 0 else 0.0
+    # full resolution: working column c covers columns [c·f, c·f + f); the boundary between
+    # working rows y - 1 and y lies at full-resolution row f·y - 0.5
+    # (working columns without a path, at the imaging area's sides, take the nearest one's row)
+    idx = np.arange(path.size)
+    right = np.clip(np.searchsorted(cols, idx), 0, cols.size - 1)
+    left = np.maximum(right - 1, 0)
+    nearest = np.where(np.abs(cols[left] - idx) <= np.abs(cols[right] - idx), cols[left], cols[right])
+    filled = path[nearest]
+    pw = filled[np.minimum(np.arange(w) // factor, path.size - 1)]
+    coarse = np.where(valid.any(axis=0), factor * pw - 0.5, np.nan)
+    rows = _refine(image, valid, coarse, factor, cfg)
+    return Horizon(rows, confidence=support * separation, support=support, separation=separation)
 
 
 def search_region(valid: np.ndarray, horizon: Horizon | None, margin: float) -> np.ndarray:
@@ -134,8 +529,9 @@ def search_region(valid: np.ndarray, horizon: Horizon | None, margin: float) -> 
 
     The limit is the lowest horizon row within ``margin`` columns either side, so narrow
     dips of the skyline (a missed column on a rooftop) do not open the ground to detection.
+    A horizon that is not confident (:func:`horizon_confident`) is ignored.
     """
-    if horizon is None:
+    if not horizon_confident(horizon):
         return valid
     rows = np.where(np.isfinite(horizon.rows), horizon.rows, np.inf)
     k = int(np.ceil(margin))
@@ -154,8 +550,10 @@ def search_zones(valid: np.ndarray, horizon: Horizon | None, margin: float, excl
     "never" also the ground; "auto" excludes the ground only in a fisheye sky view
     (``fisheye``: an imaging circle was found), since a narrow view may show targets over the
     ground. When the ground is searched it is its own zone, so its clutter does not raise the
-    sky's threshold.
+    sky's threshold. A horizon that is not confident counts as none.
     """
+    if not horizon_confident(horizon):
+        horizon = None
     sky = search_region(valid, horizon, margin)
     exclude = exclude_ground == "always" or (exclude_ground == "auto" and fisheye)
     if exclude or horizon is None:
@@ -163,12 +561,44 @@ def search_zones(valid: np.ndarray, horizon: Horizon | None, margin: float, excl
     return valid, [sky, valid & ~sky]
 
 
-class HorizonTracker:
-    """Re-estimates the horizon every ``cfg.every`` frames and smooths it over time.
+def blend(old: Horizon | None, new: Horizon | None, smoothing: float,
+          agree_px: float = AGREE_PX, threshold: float = CONFIDENT) -> Horizon | None:
+    """Combine the previous horizon with a new estimate.
 
-    Each new estimate is blended per column with the previous one (weight ``cfg.smoothing``
-    on the previous rows); a failed estimate keeps the previous horizon.
+    Agreement a = share of the columns where both have a row that differ by at most
+    ``agree_px``; s = ``smoothing``.
+
+    - A new estimate that is confident, or follows one that was not: rows from the new
+      estimate, blended with the previous ones (weight s) in the agreeing columns; confidence
+      new + a·s·(old - new), i.e. smoothed in time as far as the lines agree, the new
+      estimate's own where they do not (a panning camera, a changed scene).
+    - A failed estimate (not confident) after a confident one: the previous rows are kept,
+      confidence s·old + (1 - s)·new, so one failure keeps the horizon and repeated failures
+      let it fade below ``threshold``.
+    - No new estimate (None): the previous horizon unchanged.
     """
+    if new is None:
+        return old
+    if old is None:
+        return new
+    if new.confidence < threshold <= old.confidence:
+        conf = smoothing * old.confidence + (1.0 - smoothing) * new.confidence
+        return Horizon(old.rows, conf, new.support, new.separation)
+    both = np.isfinite(old.rows) & np.isfinite(new.rows)
+    close = both & (np.abs(np.where(both, old.rows - new.rows, 0.0)) <= agree_px)
+    agree = float(close.sum() / both.sum()) if both.any() else 0.0
+    conf = new.confidence + agree * smoothing * (old.confidence - new.confidence)
+    rows = new.rows.copy()
+    rows[close] = smoothing * old.rows[close] + (1.0 - smoothing) * new.rows[close]
+    return Horizon(rows, conf, new.support, new.separation)
+
+
+class HorizonTracker:
+    """Re-estimates the horizon every ``cfg.every`` frames and smooths it over time
+    (:func:`blend` with weight ``cfg.smoothing`` on the previous horizon): the confidence is
+    the new estimate's, smoothed with the previous value as far as the two lines agree; a
+    failed estimate (None, or not confident after a confident one) keeps the previous rows,
+    and repeated failures let its confidence fade."""
 
     def __init__(self, cfg: HorizonConfig) -> None:
         self.cfg = cfg
@@ -182,13 +612,5 @@ class HorizonTracker:
         if not self.cfg.enabled or not due:
             return self.horizon, False
         new = find_horizon(image, valid, self.cfg)
-        if new is not None and self.horizon is not None:
-            old = self.horizon.rows
-            a = self.cfg.smoothing
-            both = np.isfinite(old) & np.isfinite(new.rows)
-            rows = new.rows.copy()
-            rows[both] = a * old[both] + (1 - a) * new.rows[both]
-            new = Horizon(rows)
-        if new is not None:
-            self.horizon = new
+        self.horizon = blend(self.horizon, new, self.cfg.smoothing)
         return self.horizon, True

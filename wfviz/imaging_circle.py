@@ -10,13 +10,50 @@ import numpy as np
 from wfviz.config import CircleConfig
 
 
+#: Confidence ramps of :func:`circle_confidence` (suggested config names in brackets): rim
+#: fit residual RMS in px, full at RMS_GOOD, none at RMS_BAD (``circle.rms_good`` /
+#: ``circle.rms_bad``); share of rim points that are inliers (``circle.inliers_good`` /
+#: ``circle.inliers_bad``); imaging/dark level difference in corner-noise sigmas, log ramp
+#: (``circle.contrast_good`` / ``circle.contrast_bad``); share of the 36 ten-degree sectors
+#: around the centre that hold inlier rim points (``circle.coverage_good`` /
+#: ``circle.coverage_bad``: half the circle determines it well).
+RMS_GOOD, RMS_BAD = 0.5, 1.5
+INLIERS_GOOD, INLIERS_BAD = 0.95, 0.7
+CONTRAST_GOOD, CONTRAST_BAD = 50.0, 10.0
+COVERAGE_GOOD, COVERAGE_BAD = 0.5, 0.15
+SECTORS = 36
+
+
 @dataclass(frozen=True)
 class ImagingCircle:
-    """Distortion centre (x = column, y = row) and pixel radius R_max of the field edge."""
+    """Distortion centre (x = column, y = row) and pixel radius R_max of the field edge;
+    ``confidence`` in [0, 1] (:func:`circle_confidence`; 1 for a configured circle)."""
 
     cx: float
     cy: float
     radius: float
+    confidence: float = 1.0
+
+
+def _ramp(x: float, bad: float, good: float) -> float:
+    """0 at ``bad``, 1 at ``good``, linear between (either order)."""
+    return float(np.clip((x - bad) / (good - bad), 0.0, 1.0))
+
+
+def circle_confidence(rms: float, inliers: float, contrast: float, coverage: float) -> float:
+    """Confidence of an estimated circle: the product of four ramps, each 1 when that
+    evidence is clearly good and 0 at the estimate's rejection limit:
+
+    - rim fit residual RMS (px): 1 at RMS_GOOD, 0 at RMS_BAD (the rejection limit);
+    - inlier share of the rim points: 1 at INLIERS_GOOD, 0 at INLIERS_BAD (the limit);
+    - contrast = (imaging level - dark level) / corner noise σ: log ramp, 1 at
+      CONTRAST_GOOD, 0 at CONTRAST_BAD (the limit);
+    - coverage = share of SECTORS angular sectors around the centre holding inlier rim
+      points: 1 at COVERAGE_GOOD, 0 at COVERAGE_BAD.
+    """
+    c = _ramp(rms, RMS_BAD, RMS_GOOD) * _ramp(inliers, INLIERS_BAD, INLIERS_GOOD)
+    c *= _ramp(float(np.log(max(contrast, 1e-9))), float(np.log(CONTRAST_BAD)), float(np.log(CONTRAST_GOOD)))
+    return c * _ramp(coverage, COVERAGE_BAD, COVERAGE_GOOD)
 
 
 def fit_circle(x: np.ndarray, y: np.ndarray) -> tuple[float, float, float]:
@@ -41,7 +78,9 @@ def estimate_imaging_circle(image: np.ndarray) -> ImagingCircle | None:
     Returns None when the frame has no dark corners (a lens whose image fills the frame):
     the four corner patches must be darker than the frame centre by a clear margin, and the
     bright region's rim must fit a circle. The rim is located at the half level between the
-    dark and imaging levels with sub-pixel interpolation along the columns and rows.
+    dark and imaging levels with sub-pixel interpolation along the columns and rows. The
+    confidence comes from :func:`circle_confidence` (fit RMS, inlier share, contrast in
+    corner-noise sigmas, angular coverage of the inlier rim points).
     """
     img = image.astype(np.float32, copy=False)
     h, w = img.shape
@@ -77,9 +116,13 @@ def estimate_imaging_circle(image: np.ndarray) -> ImagingCircle | None:
         return None
     cx, cy, r = fit_circle(xs[keep], ys[keep])
     resid = np.hypot(xs[keep] - cx, ys[keep] - cy) - r
-    if np.sqrt(np.mean(resid**2)) > 1.5 or r < 0.2 * min(h, w) or keep.mean() < 0.7:
+    rms = float(np.sqrt(np.mean(resid**2)))
+    if rms > RMS_BAD or r < 0.2 * min(h, w) or keep.mean() < INLIERS_BAD:
         return None
-    return ImagingCircle(cx, cy, r)
+    ang = np.arctan2(ys[keep] - cy, xs[keep] - cx)
+    sectors = np.unique(np.floor((ang + np.pi) / (2 * np.pi) * SECTORS).astype(int) % SECTORS)
+    conf = circle_confidence(rms, float(keep.mean()), (bright - dark) / noise, sectors.size / SECTORS)
+    return ImagingCircle(cx, cy, r, conf)
 
 
 def _rim_points(img: np.ndarray, region: np.ndarray, level: float) -> tuple[np.ndarray, np.ndarray]:
@@ -126,15 +169,17 @@ def non_imaging_mask(shape: tuple[int, int], circle: ImagingCircle | None, margi
 
 
 def resolve_circle(image: np.ndarray, cfg: CircleConfig) -> ImagingCircle | None:
-    """The imaging circle a config asks for: none, the configured one, or estimated from
-    ``image`` with any configured centre or radius taking precedence."""
+    """The imaging circle a config asks for: none, the configured one (confidence 1), or
+    estimated from ``image`` with any configured centre or radius taking precedence (the
+    estimate's confidence kept)."""
     if not cfg.enabled:
         return None
     if cfg.center is not None and cfg.radius is not None:
-        return ImagingCircle(cfg.center[0], cfg.center[1], cfg.radius)
+        return ImagingCircle(cfg.center[0], cfg.center[1], cfg.radius, 1.0)
     circle = estimate_imaging_circle(image)
     if circle is not None and (cfg.center is not None or cfg.radius is not None):
-        circle = ImagingCircle(*(cfg.center or (circle.cx, circle.cy)), cfg.radius or circle.radius)
+        circle = ImagingCircle(*(cfg.center or (circle.cx, circle.cy)), cfg.radius or circle.radius,
+                               circle.confidence)
     return circle
 
 
