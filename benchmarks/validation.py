@@ -91,7 +91,9 @@ def apply_patches(patches: list[str]) -> None:
     for item in patches:
         name, _, value = item.partition("=")
         mod, _, const = name.rpartition(".")
-        setattr(importlib.import_module(mod), const, type(getattr(importlib.import_module(mod), const))(value))
+        old = getattr(importlib.import_module(mod), const)
+        new = value.strip().lower() in ("1", "true", "yes") if isinstance(old, bool) else type(old)(value)
+        setattr(importlib.import_module(mod), const, new)
 
 
 def load_with(tracker: str, config: str | None, settings: list[str]):  # noqa: ANN201

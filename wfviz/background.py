@@ -79,22 +79,32 @@ class TemporalBackground:
         return background
 
 
-def change(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -> np.ndarray:
-    """``residual - g · background``, float32 (NaN where the background is): the gain ``g``
-    (automatic gain control, a slow drift of the sensor's response) is fitted by least squares
-    on the pixels where the background is brightest (above its ``bright`` quantile), so that
-    static structure cancels however the video's contrast drifts."""
-    r = residual.astype(np.float32, copy=False)
-    bs, rs = background[::2, ::2], r[::2, ::2]  # a quarter of the pixels fits the gain as well
+def gain(residual: np.ndarray, background: np.ndarray, bright: float = 0.95) -> float:
+    """The gain ``g`` of ``residual ≈ g · background`` (automatic gain control, a slow drift of
+    the sensor's response), fitted by least squares on the pixels where the background is
+    brightest (above its ``bright`` quantile; every 4th row and column, which fits it as well),
+    so that static structure cancels in :func:`change` however the video's contrast drifts."""
+    bs = background[::4, ::4]
+    rs = residual[::4, ::4]
     known = np.isfinite(bs)
     b = bs[known]
     if b.size < 16:
-        return r - background
-    top = b >= np.quantile(b, bright)
+        return 1.0
+    k = int(bright * (b.size - 1))
+    cut = np.partition(b, k)[k]
+    top = b >= cut
     bt, rt = b[top].astype(np.float64), rs[known][top].astype(np.float64)
     den = float(np.dot(bt, bt))
-    g = float(np.dot(rt, bt)) / den if den > 0 else 1.0
-    return cv2.scaleAdd(background, -g, r)
+    return float(np.dot(rt, bt)) / den if den > 0 else 1.0
+
+
+def change(residual: np.ndarray, background: np.ndarray, g: float | None = None) -> np.ndarray:
+    """``residual - g · background``, float32 (NaN where the background is); ``g``: the gain
+    (None: fitted here, :func:`gain`)."""
+    r = residual.astype(np.float32, copy=False)
+    if g is None:
+        g = gain(r, background)
+    return cv2.scaleAdd(background, -float(g), r)
 
 
 def _moved(image: np.ndarray, d: np.ndarray) -> np.ndarray:

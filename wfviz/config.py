@@ -90,11 +90,13 @@ class DetectionConfig:
 
 @dataclass(frozen=True)
 class NoiseConfig:
-    """Local noise estimate of the residual (wfviz.noise): tile size (px) and the weight of
-    the previous frame's tile statistics."""
+    """Local noise estimate of the residual (wfviz.noise): tile size (px), the weight of the
+    previous estimate's tile statistics, and how often (frames) the statistics and tail
+    calibrations are re-estimated (every frame after a camera shift of a quarter tile)."""
 
     tile: int = field(default=32, metadata=_range(8, 256))
     smoothing: float = field(default=0.5, metadata=_range(0.0, 0.99))
+    every: int = field(default=4, metadata=_range(1, None))
 
 
 @dataclass(frozen=True)
@@ -148,6 +150,9 @@ class TrackingConfig:
     confirm_moving_significance: float = field(default=1.0, metadata=_range(0.0, None))
     confirm_straightness: float = field(default=0.8, metadata=_range(0.0, 1.0))
     reacquire: float = field(default=15.0, metadata=_range(0.0, None))  # px; 0: off (not in the paper)
+    # a confirmed track's gate is searched at a lower threshold, such that noise alone crosses
+    # it somewhere in the gate with this probability (track_score.gate_threshold); 0: off
+    gate_false_alarm: float = field(default=0.05, metadata=_range(0.0, 0.5))
     min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))

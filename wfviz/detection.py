@@ -174,7 +174,7 @@ def blobness(image: np.ndarray, xy: np.ndarray, sigma: float) -> np.ndarray:
 
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
            zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None,
-           change: np.ndarray | None = None) -> Detections:
+           change: np.ndarray | None = None, k_map: np.ndarray | None = None) -> Detections:
     """Threshold ``residual`` inside ``region`` and label 8-connected components.
 
     ``cfg.mode``: "cfar" thresholds at ``level + k_sigma · sigma`` of the local ``noise``
@@ -187,7 +187,9 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     in the scene, in its own noise σ; NaN where unknown). A pixel above ``k_sigma`` in either
     map is detected, a component's significance is the larger of the two, its ``change`` the
     largest change significance among its pixels, and its centroid weighs each pixel by how far
-    the larger of the two exceeds ``k_sigma``.
+    the larger of the two exceeds ``k_sigma``. ``k_map`` (cfar only; float32, the frame's
+    shape): the threshold in σ of every pixel instead of ``k_sigma`` (lower in the gates of
+    confirmed tracks, :func:`wfviz.track_score.gate_threshold`).
     """
     res = residual
     z_of = None  # (level, sigma) maps when significance comes from the noise estimate
@@ -195,7 +197,8 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         if noise is None:
             raise ValueError("detection.mode 'cfar' needs a noise estimate")
         res = residual.astype(np.float32, copy=False)
-        thr_map = cv2.scaleAdd(noise.sigma, float(cfg.k_sigma), noise.level)
+        thr_map = (cv2.scaleAdd(noise.sigma, float(cfg.k_sigma), noise.level) if k_map is None
+                   else cv2.add(cv2.multiply(noise.sigma, k_map), noise.level))
         grid = noise.level_grid + cfg.k_sigma * noise.sigma_grid  # the typical threshold, for the record
         thr = float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
         excess = cv2.subtract(res, thr_map)
@@ -224,7 +227,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     else:
         binary = cv2.compare(excess, 0.0, cv2.CMP_GT)
         if change is not None:  # NaN compares false
-            binary |= cv2.compare(change, float(cfg.k_sigma), cv2.CMP_GT)
+            binary |= cv2.compare(change, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
         binary &= np.asarray(region, dtype=bool).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
@@ -243,7 +246,8 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         zval = ((raw - z_of[0].ravel()[idx]) / z_of[1].ravel()[idx]).astype(np.float64)
         if change is not None:
             zc = np.nan_to_num(change.ravel()[idx].astype(np.float64), nan=-np.inf)
-            val = (np.maximum(zval, zc) - cfg.k_sigma).astype(np.float32)
+            k_here = cfg.k_sigma if k_map is None else k_map.ravel()[idx]
+            val = (np.maximum(zval, zc) - k_here).astype(np.float32)
     w = residual.shape[1]
     ix, iy = idx % w, idx // w
     stats = _component_stats(lab, ix, iy, n)

@@ -25,7 +25,7 @@ from dataclasses import dataclass, replace
 import cv2
 import numpy as np
 
-from wfviz.background import TemporalBackground, change as scene_change, suppress_background
+from wfviz.background import TemporalBackground, change as scene_change, gain, suppress_background
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
 from wfviz.detection import Detections, detect, score_detections
@@ -93,9 +93,11 @@ class FrontEnd:
         self._offset = np.zeros(2)
         self._noise: NoiseEstimate | None = None
         self._spread: NoiseEstimate | None = None
-        self.tail = TailCalibration(c.noise.tile)         # of the residual's significance
-        self.change_tail = TailCalibration(c.noise.tile)  # of the change significance
-        self._change_factor: np.ndarray | None = None
+        self.tail = TailCalibration(c.noise.tile, refresh=c.noise.every)         # of the residual's significance
+        self.change_tail = TailCalibration(c.noise.tile, refresh=c.noise.every)  # of the change significance
+        self._change_scale: np.ndarray | None = None  # 1 / (spread x tail factor) of the change
+        self._frame = 0
+        self._gain: float | None = None  # of the change (automatic gain control)
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -103,11 +105,14 @@ class FrontEnd:
         return self.imaging.circle
 
     def step(self, raw: np.ndarray, lap: Callable[[str], None], windows: np.ndarray | None = None,
-             update_horizon: bool = True) -> FrontEndResult:
+             update_horizon: bool = True,
+             k_map: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
         """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
         ``windows`` (a mask): detect only there, with the noise statistics of the last frame
         searched whole (a tracker's search windows); the temporal background still learns every
-        frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due)."""
+        frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
+        ``k_map(camera)``: called once the camera motion is known, the detection threshold of
+        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.detection.detect`)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -131,17 +136,20 @@ class FrontEnd:
         lap("suppress")
         noise = change = None
         region = self._region if windows is None else self._region & windows
+        self._frame += 1
+        moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
+        due = moved or mask_changed or horizon_updated or (self._frame - 1) % c.noise.every == 0
         if self.noise is not None:
-            if windows is None or self._noise is None:
-                moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
+            if (windows is None and due) or self._noise is None:
                 est = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
                 g = self.tail.update(est.significance(suppressed), self._region, overall=SPATIAL_OVERALL)
                 self._noise = replace(est, sigma=est.sigma * g)
             noise = self._noise
             lap("noise")
-            change = self._change(raw, img, suppressed, camera, windows is None)
+            change = self._change(raw, img, suppressed, camera, windows is None and due)
             lap("change")
-        dets = detect(suppressed, region, c.detection, self._zones, noise, change)
+        kmap = k_map(camera) if k_map is not None and noise is not None else None
+        dets = detect(suppressed, region, c.detection, self._zones, noise, change, kmap)
         dets = score_detections(dets, img, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
@@ -182,11 +190,14 @@ class FrontEnd:
         background = self.temporal.update(now, self._offset, camera is not None and camera.moving)
         if background is None:
             return None
-        change = scene_change(now, background)
+        if learn_spread or self._gain is None:
+            self._gain = gain(now, background)
+        change = scene_change(now, background, self._gain)
         if learn_spread or self._spread is None:
             known = self._region & np.isfinite(change)
             self._spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
             z = cv2.divide(change, self._spread.sigma)
-            self._change_factor = self.change_tail.update(z, known, overall=CHANGE_OVERALL)
-            return cv2.divide(z, self._change_factor)
-        return cv2.divide(cv2.divide(change, self._spread.sigma), self._change_factor)
+            factor = self.change_tail.update(z, known, overall=CHANGE_OVERALL)
+            self._change_scale = cv2.divide(1.0, cv2.multiply(self._spread.sigma, factor))
+            return cv2.divide(z, factor)
+        return cv2.multiply(change, self._change_scale)

@@ -63,6 +63,18 @@ def gate_false_alarm(density: np.ndarray, half: np.ndarray) -> np.ndarray:
     return -np.expm1(-np.asarray(density, dtype=np.float64) * area)
 
 
+def gate_threshold(half: np.ndarray, p_gate: float, k: float) -> np.ndarray:
+    """Detection threshold (in local noise σ) for each gate (half sizes (N, 2) in px) at which
+    Gaussian noise crosses it somewhere in the gate with probability ``p_gate`` (each pixel
+    counted as independent, which overstates the chance for the smoothed residual: the rate is
+    an upper bound), never above the frame's threshold ``k``. A confirmed track looks this deep
+    for its target, which fades in and out of the frame's threshold (not in the papers)."""
+    from scipy.special import ndtri
+
+    area = (2.0 * half[:, 0] + 1.0) * (2.0 * half[:, 1] + 1.0)
+    return np.minimum(ndtri(1.0 - p_gate / np.maximum(area, 1.0)), k)
+
+
 def score_change(hit: np.ndarray, p_detect: float, p_fa: np.ndarray) -> np.ndarray:
     """The score each track adds this frame: a hit or a miss (see the module docstring)."""
     p = np.clip(p_fa, 1e-12, 1.0 - 1e-9)

@@ -371,6 +371,7 @@ class TrackManager:
                shapes: dict[int, float] | None = None, birth_shapes: np.ndarray | None = None,
                density: np.ndarray | None = None, birth_density: np.ndarray | None = None,
                novelty: dict[int, float] | None = None, birth_novelty: np.ndarray | None = None,
+               prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
@@ -383,8 +384,10 @@ class TrackManager:
         undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
         ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
         ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
-        above ``delete_static`` is deleted. Returns the frame's events (including meeting
-        events from :meth:`predict`).
+        above ``delete_static`` is deleted. ``gate_fa``: per track, the probability that noise
+        crossed the threshold in its gate where it was lowered (``tracking.gate_false_alarm``;
+        0 elsewhere): a hit's false-alarm probability is at least that. Returns the frame's
+        events (including meeting events from :meth:`predict`).
         """
         scores, shapes = scores or {}, shapes or {}
         tc = self.tcfg
@@ -425,7 +428,7 @@ class TrackManager:
             z, nov = np.full(n, np.nan), np.full(n, np.nan)
             z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
             nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
-            confirm, delete, why = self._sequential(measured, density, z, nov)
+            confirm, delete, why = self._sequential(measured, density, z, nov, prior, gate_fa)
         else:
             confirm, delete, why = self._m_hits(measured, missed, moved, reported, clutter)
         gone = self._gone(measured, reported) & ~delete
@@ -496,12 +499,15 @@ class TrackManager:
         return confirm, delete, why
 
     def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
-                    nov: np.ndarray) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                    nov: np.ndarray, prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """The two sequential tests of :mod:`wfviz.track_score` (``tracking.confirm = "sprt"``):
         ``score`` against noise (hits and misses, where the hits lie in the gate) and
         ``clutter_score`` against static clutter (how significant and how new the hits are).
         ``density``: false detections per pixel at each track; ``z``, ``nov``: each hit's
-        significance and novelty. A track is confirmed when both reach the confirmation level."""
+        significance and novelty; ``prior``: ln prior odds of a target at each track (≤ 0; the
+        clutter test must make up for it). A track is confirmed when both reach the
+        confirmation level."""
         tc = self.tcfg
         n = len(self)
         th = track_score.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
@@ -511,6 +517,8 @@ class TrackManager:
             else np.full((n, 2), self.kcfg.gate_max)
         lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
         p_fa = track_score.gate_false_alarm(lam, halves)
+        if gate_fa is not None and len(gate_fa) == n:
+            p_fa = np.maximum(p_fa, gate_fa)
         change = track_score.score_change(measured, tc.p_detect, p_fa)
         clutter = np.zeros(n)
         m = np.nonzero(measured)[0]
@@ -529,7 +537,8 @@ class TrackManager:
             self.clutter_score[m] = self.clutter_hits[m].sum(axis=1)
         conf = self.confirmed
         self.score[conf] = np.minimum(self.score[conf], th.confirm)
-        confirm = (measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm))
+        need = th.confirm + (0.0 if prior is None else -np.minimum(np.asarray(prior, dtype=np.float64), 0.0))
+        confirm = (measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= need))
         if tc.require_motion and confirm.any():
             r = np.nonzero(confirm)[0]
             mo = track_score.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],

@@ -16,7 +16,7 @@ from wfviz.horizon import Horizon
 from wfviz.imaging_circle import ImagingCircle
 from wfviz.noise import NoiseEstimate
 from wfviz.registration import CameraState
-from wfviz.track_score import DetectionDensity, Thresholds
+from wfviz.track_score import DetectionDensity, Thresholds, gate_threshold
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import TrackManager
 
@@ -53,6 +53,9 @@ class GEWCResult(FrameResult):
     thresholds: Thresholds | None = None  # of the sequential test (tracking.confirm = "sprt")
 
 
+DEEP_TENTATIVE = False  # tentative tracks look deeper too
+
+
 class GEWCTracker:
     """Streams frames through the GEWC pipeline; ``step`` returns a :class:`GEWCResult`."""
 
@@ -78,14 +81,24 @@ class GEWCTracker:
         c = self.config
         timer = StageTimer()
         lap = timer.lap
-        fe = self.front.step(frame.image, lap)
-        if fe.camera is not None:
-            self.manager.shift(*fe.camera.shift)
+        predicted: list = []
+
+        def k_map(camera: CameraState | None) -> np.ndarray | None:  # camera known: predict
+            if camera is not None:
+                self.manager.shift(*camera.shift)
+            predicted.extend(self.manager.predict(frame.index))
+            return self._gate_k(predicted, frame.image.shape)
+
+        fe = self.front.step(frame.image, lap, k_map=k_map)
+        if not predicted:  # no noise estimate: k_map was not called
+            if fe.camera is not None:
+                self.manager.shift(*fe.camera.shift)
+            predicted.extend(self.manager.predict(frame.index))
         dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, fe.offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
         nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
-        preds = self.manager.predict(frame.index)
+        preds = predicted
         pairs = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
             pairs = self.manager.reacquire(preds, dets.xy, pairs, self._could_confirm(dets, labels),
@@ -110,7 +123,8 @@ class GEWCTracker:
             clutter=None if labels is None else self._track_clutter(labels, meas),
             birth_clutter=None if labels is None else labels[born],
             density=self.density.at(pred_xy), birth_density=self.density.at(dets.xy[born]),
-            novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born])
+            novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born],
+            gate_fa=self._deep_fa(preds))
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -123,6 +137,36 @@ class GEWCTracker:
             camera_shift=None if fe.camera is None else fe.camera.shift,
             clutter=labels, noise=fe.noise, camera=fe.camera, thresholds=self.manager.thresholds,
         )
+
+    def _looks_deeper(self, preds: list) -> np.ndarray:
+        """Which predictions search their gate at a lower threshold (:meth:`_gate_k`)."""
+        c = self.config
+        if c.tracking.gate_false_alarm <= 0 or c.tracking.confirm != "sprt":
+            return np.zeros(len(preds), dtype=bool)
+        return np.array([(p.confirmed or DEEP_TENTATIVE) and not p.meeting for p in preds], dtype=bool)
+
+    def _deep_fa(self, preds: list) -> np.ndarray:
+        return np.where(self._looks_deeper(preds), self.config.tracking.gate_false_alarm, 0.0)
+
+    def _gate_k(self, preds: list, shape: tuple[int, int]) -> np.ndarray | None:
+        """Detection threshold (σ) of every pixel: ``detection.k_sigma``, lower in the gates of
+        tracks that look deeper (confirmed, not in meeting mode;
+        :func:`wfviz.track_score.gate_threshold`)."""
+        c = self.config
+        deep = [p for p, d in zip(preds, self._looks_deeper(preds)) if d]
+        if not deep:
+            return None
+        half = np.array([[p.half_w, p.half_h] for p in deep])
+        ks = gate_threshold(half, c.tracking.gate_false_alarm, c.detection.k_sigma)
+        k = np.full(shape[:2], c.detection.k_sigma, dtype=np.float32)
+        h, w = shape[:2]
+        for p, kg in zip(deep, ks):
+            x0, x1 = int(np.ceil(p.x - p.half_w)), int(np.floor(p.x + p.half_w)) + 1
+            y0, y1 = int(np.ceil(p.y - p.half_h)), int(np.floor(p.y + p.half_h)) + 1
+            if x1 > 0 and y1 > 0 and x0 < w and y0 < h:
+                sub = k[max(y0, 0):y1, max(x0, 0):x1]
+                np.minimum(sub, np.float32(kg), out=sub)
+        return k
 
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
         """Detections that pass the confirmation tests in use one by one (new in the scene for
