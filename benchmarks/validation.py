@@ -7,7 +7,7 @@ chosen on one half and reported on the other. Run from the repository root:
 
     python benchmarks/validation.py                      # every group, default configuration
     python benchmarks/validation.py --groups real --half A --config my.toml
-    python benchmarks/validation.py --write              # docs/accuracy.md validation block
+    python benchmarks/validation.py --write              # docs/accuracy.md validation block of the tracker
     python benchmarks/validation.py --json out.json      # every row, for comparisons
 """
 
@@ -28,7 +28,7 @@ from pathlib import Path
 ROOT = Path(__file__).resolve().parent.parent
 SHARED = ROOT.parent / "shared" / "data"
 DOC = ROOT / "docs" / "accuracy.md"
-BEGIN, END = "<!-- validation:begin -->", "<!-- validation:end -->"
+MARKERS = "<!-- validation-{}:begin -->", "<!-- validation-{}:end -->"  # per tracker
 OWN = ("fov70-maneuver", "fov70-four-targets", "fov180-city-aircraft", "fov180-launches",
        "uniform-50hz", "long-1024")
 INDEPENDENT = {"gewc": ("S1", "S2", "S3", "S4", "S7"), "fusion": ("S1", "S2", "S3", "S4", "S7"),
@@ -248,7 +248,8 @@ def main() -> None:
                            f"confirmed tracks only; match gate 3 px for own and independent clips, 5 px for "
                            f"real ones; 'Pd (settled)' leaves out each target's first 6 visible frames).",
                            "", *summary(results), "", *table(results)])
-        write_block(DOC, BEGIN, END, block, heading="## Validation: three groups")
+        begin, end = (m.format(args.tracker) for m in MARKERS)
+        write_block(DOC, begin, end, block, heading=f"### Validation: {args.tracker}")
 
 
 if __name__ == "__main__":

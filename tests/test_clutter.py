@@ -1,4 +1,9 @@
-"""Static clutter (wfviz.clutter) and the meeting-mode options for cluttered scenes."""
+"""Static clutter (wfviz.clutter) and the meeting-mode options for cluttered scenes.
+
+The static-clutter labels act on the paper's confirmation rule (``tracking.confirm = "hits"``),
+so the track tests with labels configure it; under the default sequential test static clutter
+is rejected by its change and motion evidence instead (the last test of the labels section).
+"""
 
 from __future__ import annotations
 
@@ -153,7 +158,10 @@ def test_inconsistent_clutter_settings_are_a_config_error(section, message):
         config_from_dict({"clutter": section}, GEWCConfig)
 
 
-def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] | None = None):
+def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] | None = None,
+         novelty: float | None = None):
+    """Feed ``frames`` of detections (and their static-clutter ``labels``, and one change
+    significance ``novelty`` for every hit) to ``mgr``; returns the events."""
     events = []
     for f, xy in enumerate(frames):
         preds = mgr.predict(f)
@@ -162,15 +170,23 @@ def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] |
         used[list(pairs.values())] = True
         born = ~used & ~mgr.claimed(preds, xy)
         lab = None if labels is None else labels[f]
+        nov = {} if novelty is None else dict(
+            scores={i: 10.0 for i in pairs}, birth_scores=np.full(born.sum(), 10.0),
+            novelty={i: novelty for i in pairs}, birth_novelty=np.full(born.sum(), novelty))
         events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[born],
                              clutter=None if lab is None else {i: float(lab[d]) for i, d in pairs.items()},
-                             birth_clutter=None if lab is None else lab[born])
+                             birth_clutter=None if lab is None else lab[born], **nov)
     return events
 
 
+_HITS = TrackingConfig(confirm="hits")  # the paper's rule, where the clutter labels act
+
+
 @pytest.mark.parametrize("wait", [False, True])
-def test_track_on_static_clutter_is_deleted_or_never_confirmed(wait):
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+def test_hits_rule_track_on_static_clutter_is_deleted_or_never_confirmed(wait):
+    """confirm = "hits": labels undecided for 10 frames, then static. With ``wait`` the track
+    is never confirmed; without, it is confirmed at its 6th hit and deleted as clutter."""
+    mgr = TrackManager(KalmanConfig(), _HITS)
     mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, min_known=2, memory=0.25, wait=wait)
     xy = [np.array([[40.0, 40.0]])] * 20
     labels = [np.array([np.nan])] * 10 + [np.array([1.0])] * 10  # decided from frame 10 on
@@ -185,26 +201,30 @@ def test_track_on_static_clutter_is_deleted_or_never_confirmed(wait):
     assert not any(s.confirmed for s in mgr.states())
 
 
-def test_track_with_clean_labels_is_confirmed_as_usual():
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+def test_hits_rule_track_with_clean_labels_is_confirmed_as_usual():
+    """confirm = "hits": labels 0 (not static) do not delay the 6th-hit confirmation."""
+    mgr = TrackManager(KalmanConfig(), _HITS)
     mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, min_known=2, memory=0.25, wait=True)
     xy = [np.array([[40.0 + k, 40.0]]) for k in range(10)]
     events = _run(mgr, xy, [np.array([0.0])] * 10)
     assert [e.frame for e in events if e.kind == "confirmed"] == [5]
 
 
-def test_the_first_labels_are_averaged_plainly():
+def test_hits_rule_the_first_labels_are_averaged_plainly():
+    """confirm = "hits"."""
     # labels 1, 0, 0, 0, 0, 0: plain mean 1/6 at the 6th hit (confirmed); a running mean with
     # weight 0.1 started at the first label would still be at 0.9**5 = 0.59 (held back)
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    mgr = TrackManager(KalmanConfig(), _HITS)
     mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, memory=0.1)
     xy = [np.array([[40.0 + k, 40.0]]) for k in range(8)]
     events = _run(mgr, xy, [np.array([1.0])] + [np.array([0.0])] * 7)
     assert [e.frame for e in events if e.kind == "confirmed"] == [5]
 
 
-def test_a_confirmed_track_survives_a_short_static_spell_but_not_a_long_one():
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+def test_hits_rule_a_confirmed_track_survives_a_short_static_spell_but_not_a_long_one():
+    """confirm = "hits": the running mean of the labels deletes a confirmed track only once it
+    exceeds delete_static."""
+    mgr = TrackManager(KalmanConfig(), _HITS)
     mgr.clutter_rule = ClutterConfig(enabled=True, max_static=0.5, delete_static=0.8, memory=0.1)
     xy = [np.array([[40.0, 40.0]])] * 40
     labels = [np.array([0.0])] * 10 + [np.array([1.0])] * 30
@@ -221,27 +241,54 @@ def test_a_confirmed_track_survives_a_short_static_spell_but_not_a_long_one():
     assert [e.frame for e in deleted] == [25] and "static clutter" in deleted[0].message
 
 
+@pytest.mark.parametrize("case,moving,novelty,confirmed", [
+    ("static, as it was (static clutter)", False, 0.0, False),
+    ("static, new at its place each frame", False, 10.0, False),
+    ("moving, new at its place", True, 10.0, True),
+])
+def test_default_track_on_static_clutter_is_never_confirmed(case, moving, novelty, confirmed):
+    """Defaults (confirm = "sprt"): a track on a fixed spot is never confirmed in 40 frames,
+    whether or not its hits look new (no motion); the same hits on a mover are (the test
+    can fail). The clutter labels play no part here."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    xy = [np.array([[40.0 + (1.5 * k if moving else 0.0), 40.0]]) for k in range(40)]
+    events = _run(mgr, xy, novelty=novelty)
+    assert any(e.kind == "confirmed" for e in events) == confirmed, case
+    assert len(mgr) == 1 and mgr.states()[0].hits == 40, case  # one track, on it all along
+
+
 def _pair_frames(n: int, gap: float) -> list[np.ndarray]:
     return [np.array([[50.0, 50.0], [50.0 + gap, 50.0]]) for _ in range(n)]
 
 
-def test_static_pair_meets_by_default_but_not_with_meeting_overlap():
+def test_hits_rule_static_pair_meets_but_not_with_meeting_overlap():
+    """confirm = "hits" (a static pair is never confirmed by the sequential test, and only
+    confirmed tracks meet): 12 px apart, within the safety distance, they meet; with
+    meeting_overlap (gates that do not overlap) they keep their own detections."""
     frames = _pair_frames(30, 12.0)
-    default = TrackManager(KalmanConfig(), TrackingConfig())
+    default = TrackManager(KalmanConfig(), _HITS)
     _run(default, frames)
-    assert all(s.meeting for s in default.states())  # the paper: within 20 px = meeting
-    overlap = TrackManager(KalmanConfig(), TrackingConfig(meeting_overlap=True))
+    assert len(default) == 2 and all(s.meeting for s in default.states())  # the paper: within 20 px = meeting
+    overlap = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits", meeting_overlap=True))
     _run(overlap, frames)
     assert not any(s.meeting for s in overlap.states())
     assert all(s.hits == 30 for s in overlap.states())  # both keep their own detections
 
 
-def test_meeting_track_that_loses_its_target_is_deleted_with_meeting_misses():
+def test_hits_rule_meeting_track_is_kept_while_meeting_without_meeting_misses():
+    """confirm = "hits": the paper counts no misses while meeting, so a meeting pair whose
+    spots vanish is kept (until the meeting ends)."""
     frames = _pair_frames(12, 8.0) + [np.zeros((0, 2))] * 10  # both spots vanish at frame 12
-    default = TrackManager(KalmanConfig(), TrackingConfig())
+    default = TrackManager(KalmanConfig(), _HITS)
     _run(default, frames)
-    assert len(default) == 2  # the paper: no misses counted while meeting
-    strict = TrackManager(KalmanConfig(), TrackingConfig(meeting_misses=True))
+    assert len(default) == 2 and default.track_ids == [1, 2]
+
+
+def test_hits_rule_meeting_track_that_loses_its_target_is_deleted_with_meeting_misses():
+    """confirm = "hits" with meeting_misses: a meeting track with nothing near its
+    extrapolation counts misses, and both tracks go at the 3rd one (max_misses)."""
+    frames = _pair_frames(12, 8.0) + [np.zeros((0, 2))] * 10  # both spots vanish at frame 12
+    strict = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits", meeting_misses=True))
     events = _run(strict, frames)
     assert len(strict) == 0
     assert sorted(e.frame for e in events if e.kind == "deleted") == [14, 14]

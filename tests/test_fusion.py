@@ -18,6 +18,9 @@ from wfviz.trackers import TRACKERS, make_tracker
 from wfviz.trackers.fusion import FusionTracker, fused_cost, min_area_rect, scalar_phi
 
 PLAIN = {"circle": {"enabled": False}, "horizon": {"enabled": False}}
+# the paper's detection and confirmation (the defaults are the local-noise CFAR and the
+# sequential test): for tests of the paper's thresholding, features and hit counting
+PAPER = {"detection": {"mode": "global"}, "tracking": {"confirm": "hits"}}
 
 
 def truth_points(clip):
@@ -45,9 +48,13 @@ def blob_frame() -> tuple[np.ndarray, list[dict]]:
 
 
 @pytest.mark.parametrize("grey", ["residual", "raw"])
-def test_global_detection_features_of_known_blobs(grey):
+def test_global_detection_features_of_known_blobs(grey: str) -> None:
+    """The paper's global mean + k·std threshold keeps every blob pixel of the noise-free frame
+    (the default CFAR takes the frame's grey-level step of 20 as its noise floor and drops the
+    L's faintest pixel, +80 = 4 steps), so the features are exact."""
     img, blobs = blob_frame()
-    cfg = config_from_dict({**PLAIN, "defects": {"enabled": False}, "features": {"grey": grey}}, FusionConfig)
+    cfg = config_from_dict({**PLAIN, **PAPER, "defects": {"enabled": False}, "features": {"grey": grey}},
+                           FusionConfig)
     r = FusionTracker(cfg).step(Frame(0, 0.0, img))
     assert r.global_detection and r.global_reason == "first frame"
     f = r.features
@@ -61,9 +68,11 @@ def test_global_detection_features_of_known_blobs(grey):
         np.testing.assert_allclose(f.rects[j].mean(axis=0), b["centre"], atol=1e-9)
 
 
-def test_window_search_measures_the_same_features_as_global_detection():
+def test_window_search_measures_the_same_features_as_global_detection() -> None:
+    """Paper options: still blobs are confirmed by hits (the sequential test wants motion)."""
     img, blobs = blob_frame()
-    cfg = config_from_dict({**PLAIN, "defects": {"enabled": False}, "fusion": {"detect_every": 0}}, FusionConfig)
+    cfg = config_from_dict({**PLAIN, **PAPER, "defects": {"enabled": False}, "fusion": {"detect_every": 0}},
+                           FusionConfig)
     trk = FusionTracker(cfg)
     first = trk.step(Frame(0, 0.0, img))
     second = trk.step(Frame(1, 0.02, img))  # tentative tracks only: still global (acquisition)
@@ -78,8 +87,29 @@ def test_window_search_measures_the_same_features_as_global_detection():
     np.testing.assert_allclose(a.centre[order(first)], b.centre[order(r)])
     np.testing.assert_array_equal(a.area[order(first)], b.area[order(r)])
     np.testing.assert_allclose(a.grey[order(first)], b.grey[order(r)])
-    # outside the searched crops the residual is not computed
-    assert r.suppressed[0:10, 150:160].max() == 0 and r.suppressed[30, 41] == 100
+    # the candidates lie in the searched crops; the residual is the full frame's all the same
+    for x, y in b.centre:
+        assert any(x0 <= x < x1 and y0 <= y < y1 for x0, y0, x1, y1 in r.searched), (x, y)
+    np.testing.assert_array_equal(r.suppressed, first.suppressed)
+    assert r.suppressed[30, 41] == 100
+
+
+def test_window_search_uses_the_whole_region_threshold_in_global_mode() -> None:
+    """A bright 3x3 blob with a faint wing pixel: found whole by global detection, and the same
+    in its window, thresholded over the whole search region (the window's own mean + 4·std,
+    inflated by the blob, would drop the wing)."""
+    img = np.full((120, 160), 500, dtype=np.uint16)
+    img[50:53, 70:73] += 200
+    img[51, 73] += 40
+    cfg = config_from_dict({**PLAIN, **PAPER, "defects": {"enabled": False}, "fusion": {"detect_every": 0}},
+                           FusionConfig)
+    trk = FusionTracker(cfg)
+    results = [trk.step(Frame(k, 0.02 * k, img)) for k in range(8)]
+    first, last = results[0], results[-1]
+    assert first.features.area.tolist() == [10] and not last.global_detection
+    assert last.detections.threshold == pytest.approx(first.detections.threshold)
+    assert last.features.area.tolist() == [10]
+    np.testing.assert_allclose(last.features.centre, first.features.centre)
 
 
 def test_min_area_rect_of_a_diagonal_streak():
@@ -140,9 +170,15 @@ def nearest(tracks, xy, gate=2.0):
     return best if best is not None and np.hypot(best.x - xy[0], best.y - xy[1]) <= gate else None
 
 
-def test_target_leaving_its_window_triggers_global_detection_and_the_track_recovers():
+@pytest.mark.parametrize("confirm", [
+    "hits",
+    "sprt",
+])
+def test_target_leaving_its_window_triggers_global_detection_and_the_track_recovers(confirm: str) -> None:
+    """Both the paper's hits rule and the default sequential test ("sprt")."""
     frames, truth = jump_clip((22.0, 9.0))  # beyond gate_max = 15 px
-    trk = FusionTracker(config_from_dict({**PLAIN, "fusion": {"detect_every": 0}}, FusionConfig))
+    trk = FusionTracker(config_from_dict({**PLAIN, "fusion": {"detect_every": 0},
+                                          "tracking": {"confirm": confirm}}, FusionConfig))
     results = [trk.step(f) for f in frames]
     before = nearest([t for t in results[29].tracks if t.confirmed], truth[29][0])
     other = nearest([t for t in results[29].tracks if t.confirmed], truth[29][1])
@@ -153,6 +189,7 @@ def test_target_leaving_its_window_triggers_global_detection_and_the_track_recov
     assert r.global_detection and str(before.track_id) in r.global_reason
     kinds = {(e.kind, e.track_id) for e in r.events}
     assert ("redetect", before.track_id) in kinds and ("recovered", before.track_id) in kinds
+    assert ("deleted", before.track_id) not in kinds  # a recovered track lives on
     m = next(m for m in r.matches if m.track_id == before.track_id)
     assert m.recovered and np.hypot(m.x - truth[30][0][0], m.y - truth[30][0][1]) < 1.5
     # the same track follows the target from then on, in its windows again, and the other is undisturbed
@@ -196,15 +233,19 @@ def test_recording_logs_the_fusion_entities(tmp_path):
     every = set(range(24))
     for path in ["/camera/detections", "/camera/gates", "/camera/predictions", "/camera/tracks",
                  "/camera/rects", "/camera/measurements", "/detection/global", "/timing/total",
-                 "/timing/windows", "/timing/detect"]:
+                 "/timing/suppress", "/timing/noise", "/timing/detect", "/timing/associate",
+                 # the shared front end's (wfviz/front_end.py) and the sequential test's
+                 "/detection/noise_sigma", "/registration/dx", "/registration/dy",
+                 "/registration/moving", "/tracks/confirm_level"]:
         assert frames[path] == every, path
-    assert {"grey", "phi", "cost", "track", "area", "flux"} <= cols["/camera/detections"]
+    assert ({"grey", "phi", "cost", "track", "area", "flux", "significance", "change"}
+            <= cols["/camera/detections"])
     phi = [p for p in frames if p.startswith("/fusion/") and p.endswith("/phi")]
     cost = [p for p in frames if p.startswith("/fusion/") and p.endswith("/cost")]
     assert len(phi) == 2 and len(cost) == 2 and all(len(frames[p]) >= 15 for p in phi + cost)
     assert sum(p.startswith("/kalman/") and p.endswith("/innovation") for p in frames) == 2
     assert any("global detection (periodic" in t for t in texts)
-    assert "/suppressed/image" not in frames  # image_every=0
+    assert "/suppressed/image" not in frames and "/suppressed/noise" not in frames  # image_every=0
 
 
 def test_registered_and_config_round_trips():
@@ -218,11 +259,54 @@ def test_registered_and_config_round_trips():
         config_from_dict({"fusion": {"alpha": 0.0, "beta": 0.0, "gamma": 0.0}}, FusionConfig)
 
 
-@pytest.mark.parametrize("key", ["reacquire = 15.0", "confirm_moving = 6.0",
-                                 "compensate_motion = true", "meeting_misses = true"])
-def test_gewc_only_tracking_options_are_refused(key):
+@pytest.mark.parametrize("key", ["confirm_moving = 6.0", "meeting_misses = true"])
+def test_gewc_only_tracking_options_are_refused(key: str) -> None:
     with pytest.raises(ConfigError, match=f"tracking.{key.split()[0]} is not supported by the fusion"):
         config_from_dict(tomllib.loads(f"[tracking]\n{key}\n"), FusionConfig)
+
+
+def panning_clip(n: int = 16, step: int = 2, seed: int = 0) -> tuple[list[Frame], list[tuple[float, float]]]:
+    """A textured scene panning left by ``step`` px a frame (the camera turns right), with one
+    target moving in it by (1, 0.5) px a frame; returns the frames and the target's image
+    positions."""
+    rng = np.random.default_rng(seed)
+    h, w = 120, 160
+    yy, xx = np.mgrid[0:h, 0:w + step * n]
+    scene = 1000.0 + np.zeros(xx.shape)
+    for x, y in rng.uniform((0, 0), (w + step * n, h), (120, 2)):  # bright, corner-rich blobs
+        scene += 60.0 * np.exp(-((xx - x) ** 2 + (yy - y) ** 2) / 8.0)
+    frames, truth = [], []
+    for k in range(n):
+        img = scene[:, step * k: step * k + w] + rng.normal(0.0, 3.0, (h, w))
+        x, y = 50.0 + 1.0 * k, 60.0 + 0.5 * k
+        add_gaussian_spot(img, x, y, 200.0, 0.8)
+        frames.append(Frame(k, k / 50.0, np.clip(img, 0, 65535).astype(np.uint16)))
+        truth.append((x, y))
+    return frames, truth
+
+
+@pytest.mark.parametrize("motion", ["auto", "off"])
+def test_fusion_accepts_and_runs_with_reacquire_and_compensate_motion(motion: str) -> None:
+    """``tracking.reacquire`` (a GEWC stage; the fusion tracker recovers by global detection)
+    and ``tracking.compensate_motion`` (the shared front end's camera motion) are accepted:
+    "auto" measures the pan, "off" assumes a still camera."""
+    text = f'[tracking]\nreacquire = 30.0\ncompensate_motion = "{motion}"\n'
+    cfg = config_from_dict({**tomllib.loads(text), **PLAIN}, FusionConfig)
+    assert (cfg.tracking.reacquire, cfg.tracking.compensate_motion) == (30.0, motion)
+    frames, truth = panning_clip()
+    trk = FusionTracker(cfg)
+    results = [trk.step(f) for f in frames]
+    if motion == "off":
+        assert all(r.camera is None for r in results)
+    else:
+        cams = [r.camera for r in results[1:]]
+        assert all(c is not None and c.reliable for c in cams)
+        np.testing.assert_allclose([c.shift for c in cams], np.tile([-2.0, 0.0], (len(cams), 1)), atol=0.2)
+        assert results[-1].camera.moving
+        assert results[-1].camera.offset[0] == pytest.approx(-2.0 * (len(frames) - 1), abs=1.0)
+    # the target is detected near its position on every frame
+    for r, (x, y) in zip(results, truth):
+        assert len(r.detections) and np.min(np.hypot(*(r.detections.xy - (x, y)).T)) < 1.5
 
 
 def _spot_and_ridge(n: int = 12, seed: int = 0):
@@ -239,8 +323,11 @@ def _spot_and_ridge(n: int = 12, seed: int = 0):
 @pytest.mark.parametrize("tests,confirmed", [({}, {(40, 40), (100, 80)}),
                                              ({"confirm_blobness": 0.4, "confirm_significance": 4.0},
                                               {(40, 40)})])
-def test_fusion_confirmation_tests_drop_the_ridge(tests, confirmed):
-    cfg = config_from_dict({**PLAIN, "defects": {"enabled": False}, "tracking": tests}, FusionConfig)
+def test_fusion_confirmation_tests_drop_the_ridge(tests: dict, confirmed: set) -> None:
+    """Paper options (global threshold, hits) plus the blobness and significance (SCR) tests:
+    both still objects are confirmed by hits, and the tests drop the ridge."""
+    cfg = config_from_dict({**PLAIN, "defects": {"enabled": False}, "detection": PAPER["detection"],
+                            "tracking": {**PAPER["tracking"], **tests}}, FusionConfig)
     trk = FusionTracker(cfg)
     seen = set()
     for f in _spot_and_ridge():

@@ -1,8 +1,12 @@
-"""Regression floors on short excerpts of the real IR sequences in ../shared/data/real/.
+"""Regression floors on the real IR sequences in ../shared/data/real/, default configuration
+(one default for every camera: there is no per-sequence or per-camera file).
 
-Floors sit a little below what was measured with configs/real-gewc.toml and
-configs/real-fusion.toml (see docs/accuracy.md, "Real sequences"); false-alarm ceilings a little
-above. Skipped where the data is absent.
+Each floor sits 0.05 below the Pd measured by ``python benchmarks/validation.py`` (docs/accuracy.md,
+"Validation"), each false-alarm ceiling a quarter above the measured rate plus 0.05 a frame;
+gate 5 px, confirmed tracks only. The cases span the three sets and both declared halves
+(A: where rules and values were chosen, B: held out), and include sequences that miss the goal
+(their floors guard what works, their ceilings what does not get worse). Skipped where the data
+is absent.
 """
 
 from __future__ import annotations
@@ -18,45 +22,38 @@ from wfviz.trackers import load_tracker
 
 ROOT = Path(__file__).resolve().parent.parent
 DATA = ROOT.parent / "shared" / "data" / "real"
-CONFIG = {"gewc": ROOT / "configs" / "real-gewc.toml", "fusion": ROOT / "configs" / "real-fusion.toml"}
 
-# sequence, frames, measured Pd, measured FA/frame (gate 5 px); GEWC
+# tracker, sequence, measured Pd, measured FA/frame (whole sequence, defaults)
 CASES = [
-    ("tensoristd_sky/easy1", 40, 0.925, 0.0),
-    ("tensoristd_sky/easy2", 30, 0.900, 0.067),
-    ("tensoristd_sky/easy3", 30, 0.900, 0.0),
-    ("tensoristd_sky/easy6", 60, 0.950, 0.0),
-    ("daub_tensoristd/sequence5", 60, 0.933, 0.0),
-    ("daub_tensoristd/sequence8", 60, 0.883, 0.0),
-    ("daub_tensoristd/sequence11", 40, 0.900, 0.05),
-    ("svanstrom_ir/IR_AIRPLANE_041", 80, 0.963, 0.0),
-    ("svanstrom_ir/IR_BIRD_071", 80, 0.963, 0.0),
+    ("gewc", "tensoristd_sky/easy2", 0.833, 0.0),
+    ("gewc", "tensoristd_sky/easy6", 0.680, 0.62),
+    ("gewc", "daub_tensoristd/sequence1", 0.870, 0.21),
+    ("gewc", "daub_tensoristd/sequence11", 0.950, 0.25),
+    ("gewc", "svanstrom_ir/IR_AIRPLANE_060", 0.860, 0.0),
+    ("gewc", "svanstrom_ir/IR_BIRD_017", 0.947, 0.013),
+    ("gewc", "svanstrom_ir/IR_BIRD_063", 0.900, 0.12),
+    ("gewc", "svanstrom_ir/IR_DRONE_032", 0.940, 0.0),
+    ("gewc", "svanstrom_ir/IR_DRONE_110", 0.967, 0.0),
+    ("fusion", "daub_tensoristd/sequence11", 0.870, 0.04),
+    ("fusion", "svanstrom_ir/IR_AIRPLANE_049", 0.767, 0.133),
+    ("fusion", "svanstrom_ir/IR_DRONE_045", 0.947, 0.0),
 ]
-# the same for the fusion tracker
-FUSION_CASES = [
-    ("tensoristd_sky/easy1", 40, 0.875, 0.0),
-    ("daub_tensoristd/sequence8", 60, 0.917, 4.2),
-    ("svanstrom_ir/IR_BIRD_071", 80, 0.938, 0.0),
-    ("svanstrom_ir/IR_DRONE_020", 80, 0.938, 0.0),
-]
-ALL = [("gewc", *c) for c in CASES] + [("fusion", *c) for c in FUSION_CASES]
 
 
-@pytest.mark.parametrize("tracker_name,rel,frames,pd,fa", ALL,
-                         ids=[f"{c[0]}-{c[1].split('/')[1]}" for c in ALL])
-def test_real_excerpt_floor(tracker_name, rel, frames, pd, fa):
+@pytest.mark.parametrize("tracker_name,rel,pd,fa", CASES, ids=[f"{c[0]}-{c[1].split('/')[1]}" for c in CASES])
+def test_real_sequence_floor(tracker_name: str, rel: str, pd: float, fa: float) -> None:
     seq = DATA / rel
     if not (seq / "truth.csv").exists():
         pytest.skip(f"{seq}: real data not present (shared/data/real is not checked out here)")
-    tracker = load_tracker(tracker_name, CONFIG[tracker_name])
+    tracker = load_tracker(tracker_name, None)
     tracks = {}
     with warnings.catch_warnings():
         warnings.simplefilter("ignore")  # the truth.csv beside the frames is skipped with a note
-        for frame in open_clip(seq).frames(0, frames):
+        for frame in open_clip(seq).frames():
             result = tracker.step(frame)
             tracks[frame.index] = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
     shown, hidden = read_truth(seq / "truth.csv")
-    scores = evaluate_points(tracks, {f: v for f, v in shown.items() if f < frames}, 5.0, hidden)
-    print(f"{tracker_name} {rel} ({frames} frames): Pd {scores.pd:.3f}, FA/frame {scores.fa_per_frame:.2f}")
+    scores = evaluate_points(tracks, shown, 5.0, hidden)
+    print(f"{tracker_name} {rel}: Pd {scores.pd:.3f}, FA/frame {scores.fa_per_frame:.3f}")
     assert scores.pd >= pd - 0.05
-    assert scores.fa_per_frame <= fa * 1.25 + 0.1
+    assert scores.fa_per_frame <= fa * 1.25 + 0.05

@@ -11,6 +11,7 @@ from wfviz.config import DetectionConfig, HorizonConfig
 from wfviz.detection import blobness, detect
 from wfviz.horizon import find_horizon, horizon_confident, max_gradient
 from wfviz.imaging_circle import estimate_imaging_circle, non_imaging_mask, ImagingCircle
+from wfviz.noise import NoiseModel
 from wfviz.synth.psf import add_gaussian_spot
 
 
@@ -107,16 +108,31 @@ def test_suppression_raises_target_snr():
     assert res.min() >= 0
 
 
-def test_detect_finds_spots_at_their_positions():
+@pytest.mark.parametrize("mode", ["cfar", "global"])
+def test_detect_finds_spots_at_their_positions(mode: str) -> None:
+    """The default CFAR (with the residual's local noise estimate) and the paper's global
+    mean + k·std both find the three spots, and nothing else, at their positions."""
     rng = np.random.default_rng(6)
     img = 1000 + rng.normal(0, 10, (100, 120))
     truth = [(20.3, 30.6), (80.8, 70.1), (50.5, 50.5)]
     for x, y in truth:
         add_gaussian_spot(img, x, y, 150.0, 1.0)
     res = suppress_background(img.astype(np.float32), 5)
-    d = detect(res, np.ones(res.shape, bool), DetectionConfig(k_sigma=5.0))
+    valid = np.ones(res.shape, bool)
+    cfg = DetectionConfig(mode=mode, k_sigma=5.0)
+    noise = NoiseModel().update(res, valid) if mode == "cfar" else None
+    d = detect(res, valid, cfg, noise=noise)
+    assert len(d) == len(truth)
     for x, y in truth:
         assert np.min(np.hypot(d.xy[:, 0] - x, d.xy[:, 1] - y)) < 0.5
+    if mode == "cfar":  # each spot's significance: its peak in local noise σ, above k_sigma
+        assert d.significance is not None and (d.significance > cfg.k_sigma).all()
+
+
+def test_cfar_detection_needs_a_noise_estimate() -> None:
+    res = np.zeros((20, 20), np.float32)
+    with pytest.raises(ValueError, match="needs a noise estimate"):
+        detect(res, np.ones(res.shape, bool), DetectionConfig())
 
 
 def test_blobness_tells_round_spots_from_ridges():

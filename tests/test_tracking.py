@@ -1,11 +1,16 @@
-"""Kalman filter and track management against hand-computed numbers and scripted scenes."""
+"""Kalman filter and track management against hand-computed numbers and scripted scenes.
+
+The default confirmation is the sequential test (``tracking.confirm = "sprt"``,
+:mod:`wfviz.track_score`); tests of the paper's rule and of its options (confirm_blobness,
+confirm_moving, confirm_significance, reacquire, clutter labels) configure ``confirm = "hits"``.
+"""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from wfviz import kalman
+from wfviz import kalman, track_score
 from wfviz.clip import Frame
 from wfviz.config import ClutterConfig, GEWCConfig, KalmanConfig, TrackingConfig, config_from_dict
 from wfviz.trackers.gewc import GEWCTracker
@@ -49,8 +54,9 @@ def _run(manager, frames):
     return events
 
 
-def test_confirmation_after_six_hits_and_deletion_after_three_misses():
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+def test_paper_rule_confirms_after_six_hits_and_deletes_after_three_misses():
+    """confirm = "hits" (the paper): confirmed at the 6th hit, deleted at the 3rd consecutive miss."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits"))
     frames = [[(50 + 1.0 * k, 40 + 0.5 * k)] for k in range(8)] + [[]] * 3
     events = _run(mgr, frames[:5])
     assert not any(e.kind == "confirmed" for e in events)          # 5 hits: still tentative
@@ -63,10 +69,11 @@ def test_confirmation_after_six_hits_and_deletion_after_three_misses():
     assert len(mgr) == 0
 
 
-def test_confirmation_waits_for_round_hits_with_confirm_blobness():
-    """A track whose hits are ridge-like (low mean blobness) is never confirmed; a round one is."""
+def test_hits_rule_confirmation_waits_for_round_hits_with_confirm_blobness():
+    """confirm = "hits": a track whose hits are ridge-like (low mean blobness) is never
+    confirmed; a round one is, at its 6th hit."""
     for shape, confirmed in ((0.1, False), (0.8, True)):
-        mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm_blobness=0.4))
+        mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits", confirm_blobness=0.4))
         events = []
         for f in range(10):
             preds = mgr.predict(f)
@@ -105,7 +112,7 @@ def _scored_run(tcfg: TrackingConfig, points: list, shift: tuple[float, float] =
     return events, mgr
 
 
-_LOW_SCR = dict(confirm_hits=4, confirm_significance=4.0)
+_LOW_SCR = dict(confirm="hits", confirm_hits=4, confirm_significance=4.0)  # the paper's rule
 
 
 @pytest.mark.parametrize("case,moving,points,shift,frame", [
@@ -117,9 +124,10 @@ _LOW_SCR = dict(confirm_hits=4, confirm_significance=4.0)
     ("fixed in the scene, camera panning", 6.0, [(50 - 3.0 * f, 40.0) for f in range(10)], (-3.0, 0), None),
     ("a missed frame", 6.0, [(50 + 3.0 * f, 40.0) if f != 2 else None for f in range(10)], (0, 0), None),
 ])
-def test_confirm_moving_relaxes_the_significance_for_straight_movers(case, moving, points, shift, frame):
-    """Mean significance 1.5 < 4: only a gapless track moving 6 px in a straight line, in the
-    scene and in the image alike, is confirmed (at confirm_moving_significance 1)."""
+def test_hits_rule_confirm_moving_relaxes_the_significance_for_straight_movers(case, moving, points, shift, frame):
+    """confirm = "hits", mean significance 1.5 < 4: only a gapless track moving 6 px in a
+    straight line, in the scene and in the image alike, is confirmed (at
+    confirm_moving_significance 1)."""
     events, mgr = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=moving), points, shift)
     got = [e for e in events if e.kind == "confirmed"]
     assert len(mgr) == 1 and mgr.states()[0].hits == sum(p is not None for p in points), case
@@ -128,7 +136,8 @@ def test_confirm_moving_relaxes_the_significance_for_straight_movers(case, movin
         assert "mean significance 1.5 (a mover:" in got[0].message
 
 
-def test_confirm_moving_still_needs_its_own_significance():
+def test_hits_rule_confirm_moving_still_needs_its_own_significance():
+    """confirm = "hits": a straight mover below confirm_moving_significance is not confirmed."""
     points = [(50 + 3.0 * f, 40.0) for f in range(10)]
     events, _ = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=6.0, confirm_moving_significance=2.0),
                             points)
@@ -139,16 +148,17 @@ def test_confirm_moving_still_needs_its_own_significance():
 
 
 @pytest.mark.parametrize("labels,frame", [([0.0] * 10, 3), ([0.0, 1.0] * 5, None)])
-def test_confirm_moving_needs_the_clutter_stage_to_agree(labels, frame):
-    """Half its hits judged static (mean 0.5: allowed by clutter.max_static, above the mover's
-    0.25): the straight track is not a mover."""
+def test_hits_rule_confirm_moving_needs_the_clutter_stage_to_agree(labels, frame):
+    """confirm = "hits" with clutter labels. Half its hits judged static (mean 0.5: allowed by
+    clutter.max_static, above the mover's 0.25): the straight track is not a mover."""
     events, _ = _scored_run(TrackingConfig(**_LOW_SCR, confirm_moving=6.0),
                             [(50 + 3.0 * f, 40.0) for f in range(10)], labels=labels)
     got = [e for e in events if e.kind == "confirmed"]
     assert (got[0].frame if got else None) == frame
 
 def _confirmed_track(mgr: TrackManager, frames: int = 8) -> None:
-    for f in range(frames):  # a target moving 1 px/frame in x, confirmed at the 6th hit
+    """A target moving 1 px/frame in x (confirmed at the 6th hit under confirm = "hits")."""
+    for f in range(frames):
         preds = mgr.predict(f)
         xy = np.array([[50.0 + f, 40.0]])
         pairs = mgr.associate(preds, xy)
@@ -157,9 +167,12 @@ def _confirmed_track(mgr: TrackManager, frames: int = 8) -> None:
 
 @pytest.mark.parametrize("radius,eligible,kept", [(0.0, True, False), (15.0, True, True),
                                                   (15.0, False, False), (6.0, True, False)])
-def test_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept):
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+def test_hits_rule_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept):
+    """confirm = "hits": a confirmed track with nothing in its gate re-acquires an eligible
+    detection within ``radius`` px of its prediction."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits"))
     _confirmed_track(mgr)
+    assert mgr.states()[0].confirmed  # the premise: only confirmed tracks re-acquire
     tid = mgr.track_ids[0]
     preds = mgr.predict(8)  # predicted near (58, 40); the target jumped 8 px down
     xy = np.array([[58.0, 48.0]])
@@ -178,17 +191,25 @@ def test_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept):
         assert mgr.states()[0].misses == 1 and len(mgr) == 2  # a miss, and a new tentative track
 
 
-def test_reacquire_leaves_detections_in_another_confirmed_gate():
-    mgr = TrackManager(KalmanConfig(), TrackingConfig())
-    for f in range(8):  # two targets 12 px apart
+def test_hits_rule_reacquire_leaves_detections_in_another_confirmed_gate():
+    """confirm = "hits": two confirmed targets 12 px apart (safety distance 10: not meeting).
+    The first is not seen; a spare detection in the second's gate, 10 px from the first's
+    prediction (within the re-acquisition radius), stays where it is."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm="hits", safety_distance=10.0))
+    for f in range(8):
         preds = mgr.predict(f)
         xy = np.array([[50.0 + f, 40.0], [50.0 + f, 52.0]])
         pairs = mgr.associate(preds, xy)
         mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[[j for j in range(2) if j not in pairs.values()]])
+    assert [(s.confirmed, s.meeting) for s in mgr.states()] == [(True, False)] * 2  # the premise
     preds = mgr.predict(8)
-    xy = np.array([[58.0, 52.0]])  # only the second target is seen
+    xy = np.array([[58.0, 52.0], [58.0, 50.0]])  # the second target, and a spot in its gate
     pairs = mgr.associate(preds, xy)
-    assert mgr.reacquire(preds, xy, pairs, np.array([True]), 15.0) == pairs  # the first takes nothing
+    assert pairs == {1: 0} and mgr.claimed(preds, xy).tolist() == [True, True]
+    assert mgr.reacquire(preds, xy, pairs, np.array([True, True]), 15.0) == pairs  # the first takes nothing
+    # the same spot outside every confirmed gate is re-acquired (the test above can fail)
+    far = np.array([[58.0, 52.0], [66.0, 40.0]])
+    assert mgr.reacquire(preds, far, mgr.associate(preds, far), np.array([True, True]), 15.0) == {0: 1, 1: 0}
 
 
 def _run_from(mgr, frames, a, b):
@@ -211,11 +232,17 @@ def test_no_measurement_goes_to_two_tracks():
     assert len(pairs) == 1
 
 
-@pytest.mark.parametrize("tcfg", [TrackingConfig(),
-                                  TrackingConfig(meeting_overlap=True, meeting_misses=True)],
-                         ids=["paper", "cluttered-scene-options"])
+@pytest.mark.parametrize("tcfg", [
+    pytest.param(TrackingConfig(confirm="hits"), id="paper"),
+    pytest.param(TrackingConfig(confirm="hits", meeting_overlap=True, meeting_misses=True),
+                 id="paper-cluttered-scene-options"),
+    pytest.param(TrackingConfig(), id="defaults"),
+    pytest.param(TrackingConfig(meeting_overlap=True, meeting_misses=True), id="defaults-cluttered-scene-options"),
+])
 def test_crossing_keeps_both_identities(tcfg):
-    """Two targets crossing at ~110°: meeting mode carries both identities through."""
+    """Two targets crossing at ~110°: meeting mode carries both identities through, under the
+    paper's rule and under the sequential test (hits of significance 10 that are new at their
+    place in the scene, novelty 10, as a moving target's)."""
     mgr = TrackManager(KalmanConfig(), tcfg)
     rng = np.random.default_rng(0)
     n = 60
@@ -229,7 +256,10 @@ def test_crossing_keeps_both_identities(tcfg):
         pairs = mgr.associate(preds, xy)
         used = np.zeros(len(xy), bool)
         used[list(pairs.values())] = True
-        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used & ~mgr.claimed(preds, xy)])
+        born = ~used & ~mgr.claimed(preds, xy)
+        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[born],
+                   scores={i: 10.0 for i in pairs}, birth_scores=np.full(born.sum(), 10.0),
+                   novelty={i: 10.0 for i in pairs}, birth_novelty=np.full(born.sum(), 10.0))
         states = [s for s in mgr.states() if s.confirmed]
         meeting_seen |= any(s.meeting for s in states)
         for truth, ids in ((a[f], ids_a), (b[f], ids_b)):
@@ -269,9 +299,11 @@ def _edge_clip(n: int = 12, seed: int = 0):
 
 
 @pytest.mark.parametrize("moving,frame", [(0.0, None), (6.0, 3)])
-def test_gewc_confirms_a_mover_under_an_edge_only_with_confirm_moving(moving, frame):
-    cfg = config_from_dict({"horizon": {"exclude_ground": "never"},
-                            "tracking": {"confirm_hits": 4, "confirm_significance": 4.0,
+def test_gewc_hits_rule_confirms_a_mover_under_an_edge_only_with_confirm_moving(moving, frame):
+    """confirm = "hits" with confirm_significance 4 (the signal-to-clutter ratio over the 31 px
+    window, computed with the paper's global threshold: detection.mode = "global")."""
+    cfg = config_from_dict({"horizon": {"exclude_ground": "never"}, "detection": {"mode": "global"},
+                            "tracking": {"confirm": "hits", "confirm_hits": 4, "confirm_significance": 4.0,
                                          "confirm_moving": moving}}, GEWCConfig)
     tracker = GEWCTracker(cfg)
     confirmed = {}
@@ -283,3 +315,145 @@ def test_gewc_confirms_a_mover_under_an_edge_only_with_confirm_moving(moving, fr
         assert confirmed == {}
     else:  # the mover alone, at its 4th frame; never the spot that stays put
         assert [(f, round(x), round(y)) for f, x, y in confirmed.values()] == [(3, 39, 67)]
+
+
+def test_gewc_defaults_confirm_the_mover_under_an_edge_and_never_the_spot_that_stays_put():
+    """Defaults (sequential test, CFAR detection): the mover along the edge is confirmed, on
+    its own path; the spot as bright that stays put on the edge never is (no motion, no change)."""
+    tracker = GEWCTracker(config_from_dict({"horizon": {"exclude_ground": "never"}}, GEWCConfig))
+    confirmed: dict[int, tuple[int, float, float]] = {}
+    ever_near_spot = False
+    for f in _edge_clip(n=24):
+        for t in tracker.step(f).tracks:
+            if t.confirmed:
+                confirmed.setdefault(t.track_id, (f.index, t.x, t.y))
+                ever_near_spot |= abs(t.x - 130.0) < 6 and abs(t.y - 67.0) < 6
+    assert confirmed and not ever_near_spot
+    for f, x, y in confirmed.values():  # where the mover was in the confirming frame
+        assert abs(x - (30 + 3.0 * f)) < 2.0 and abs(y - 67.0) < 2.0
+
+
+# -- the sequential test (tracking.confirm = "sprt", the default) ---------------------------
+
+def _sprt_run(points: list, z: float = 10.0, novelty: float = 10.0, density: float | None = None,
+              tcfg: TrackingConfig | None = None) -> tuple[list, TrackManager]:
+    """Feed one detection per frame (None: nothing seen) of significance ``z`` and change
+    significance ``novelty`` (how new it is at its place in the scene) to a TrackManager with
+    the default TrackingConfig (or ``tcfg``); ``density``: false detections per pixel."""
+    mgr = TrackManager(KalmanConfig(), tcfg or TrackingConfig())
+    events = []
+    for f, point in enumerate(points):
+        preds = mgr.predict(f)
+        xy = np.array([] if point is None else [point], dtype=float).reshape(-1, 2)
+        pairs = mgr.associate(preds, xy)
+        born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
+        nb = len(born)
+        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
+                             scores={i: z for i in pairs}, birth_scores=np.full(nb, z),
+                             novelty={i: novelty for i in pairs}, birth_novelty=np.full(nb, novelty),
+                             density=None if density is None else np.full(len(preds), density),
+                             birth_density=None if density is None else np.full(nb, density))
+    return events, mgr
+
+
+_MOVER = [(50 + 1.5 * f, 40 + 0.5 * f) for f in range(30)]
+_STATIC = [(50.0, 40.0)] * 30
+
+
+def test_default_confirmation_is_the_sequential_test():
+    assert TrackingConfig().confirm == "sprt"
+
+
+def test_sprt_confirms_a_steady_mover_with_significant_novel_hits():
+    """Not before its clutter score (ln(q_target / q_static) per changed hit) reaches the
+    confirmation level, and once only."""
+    events, mgr = _sprt_run(_MOVER)
+    got = [e for e in events if e.kind == "confirmed"]
+    assert len(got) == 1 and len(mgr) == 1 and mgr.states()[0].confirmed
+    tc, th = TrackingConfig(), mgr.thresholds
+    per_hit = float(track_score.change_evidence(np.array([10.0]), mgr.detection_threshold,
+                                                tc.static_change_rate, tc.target_change_rate)[0])
+    assert per_hit > 0
+    assert got[0].frame + 1 >= np.ceil(th.confirm / per_hit)  # hits so far (born in frame 0)
+    assert "persistence" in got[0].message and "not clutter" in got[0].message
+    assert not any(e.kind == "deleted" for e in events)
+
+
+@pytest.mark.parametrize("case,points,novelty", [
+    ("static spot, new at its place each frame (blinking)", _STATIC, 10.0),
+    ("static spot, as it was (static clutter)", _STATIC, 0.0),
+    ("mover with no change evidence", _MOVER, 0.0),
+])
+def test_sprt_never_confirms_without_motion_or_change_evidence(case, points, novelty):
+    """Persistent, significant hits are not enough: a static spot fails the motion test, and a
+    track whose hits are not new at their place in the scene fails the clutter test."""
+    events, mgr = _sprt_run(points, novelty=novelty)
+    assert not any(e.kind == "confirmed" for e in events), case
+    assert len(mgr) == 1 and mgr.states()[0].hits == len(points), case  # tracked all along
+    assert mgr.score[0] >= mgr.thresholds.confirm, case  # persistence alone would confirm it
+
+
+def test_sprt_drops_faint_hits_in_a_cluttered_gate():
+    """Hits at the detection threshold (as noise crosses it) where false detections are dense
+    (0.005 per px): the persistence score falls, the tentative tracks are dropped, never
+    confirmed; the same hits well above the threshold are confirmed."""
+    events, mgr = _sprt_run(_MOVER, z=4.0, density=0.005)
+    assert not any(e.kind == "confirmed" for e in events)
+    assert any(e.kind == "deleted" for e in events)
+    events, _ = _sprt_run(_MOVER, z=10.0, density=0.005)
+    assert [e.kind for e in events if e.kind != "born"] == ["confirmed"]
+
+
+def _misses_to_delete(th: track_score.Thresholds, p_detect: float) -> int:
+    """Consecutive misses that take a confirmed track (score capped at ``th.confirm``) in a
+    clean gate (p_fa = 0) to ``th.delete``, in exact arithmetic (a tie deletes: score <= delete)."""
+    miss = float(track_score.score_change(np.array([False]), p_detect, np.array([0.0]))[0])
+    return int(np.ceil((th.confirm - th.delete) / -miss - 1e-9))
+
+
+@pytest.mark.parametrize("p_lost", [
+    0.001,
+    0.005, 0.0002, 0.05,
+])
+def test_sprt_deletes_a_confirmed_track_after_a_bounded_number_of_misses(p_lost):
+    """A confirmed mover that stops being detected is deleted at exactly the miss at which its
+    score falls ln(1 / p_lost) below confirmation (track_score.thresholds), not before."""
+    tcfg = TrackingConfig(p_lost=p_lost)
+    events, mgr = _sprt_run(_MOVER[:10] + [None] * 10, tcfg=tcfg)
+    confirmed = [e.frame for e in events if e.kind == "confirmed"]
+    deleted = [e for e in events if e.kind == "deleted"]
+    assert len(confirmed) == 1 and confirmed[0] < 9 and len(deleted) == 1
+    n = _misses_to_delete(mgr.thresholds, tcfg.p_detect)
+    assert 1 <= n < 10
+    assert deleted[0].frame == 9 + n  # last hit in frame 9
+    assert f"after {n} consecutive misses" in deleted[0].message and len(mgr) == 0
+
+
+def test_sprt_deletion_bound_follows_p_lost():
+    """The bound grows with ln(1 / p_lost): a smaller p_lost keeps a lost track longer."""
+    th = [track_score.thresholds(1.0, 1.0, 0.01, p) for p in (0.05, 0.005, 0.0002)]
+    n = [_misses_to_delete(t, 0.9) for t in th]
+    assert n == sorted(n) and n[0] < n[-1]
+    assert all(t.delete < t.confirm for t in th)
+
+
+def test_gate_threshold_is_at_most_k_and_falls_with_p_gate():
+    """gate_threshold: never above the frame's k; lower for a larger allowed false-alarm
+    probability; higher for a larger gate; noise crosses it in the gate with probability at
+    most p_gate (union bound over the gate's pixels)."""
+    from scipy.stats import norm
+
+    half = np.array([[3.0, 3.0], [8.0, 5.0], [15.0, 15.0]])
+    area = (2 * half[:, 0] + 1) * (2 * half[:, 1] + 1)
+    k = 4.0
+    rows = [track_score.gate_threshold(half, p, k) for p in (0.001, 0.01, 0.05, 0.2)]
+    for t in rows:
+        assert t.shape == (3,) and (t <= k).all()
+        assert (np.diff(t) >= 0).all()  # a larger gate needs a higher threshold
+    for a, b in zip(rows, rows[1:]):
+        assert (b <= a).all() and (b < a)[a < k].all()
+    t = rows[2]  # p_gate 0.05
+    below = t < k
+    assert below.any()
+    assert np.allclose(area[below] * norm.sf(t[below]), 0.05)
+    assert np.allclose(track_score.gate_threshold(half, 1e-9, k), k)  # clipped to k

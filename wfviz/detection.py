@@ -41,6 +41,14 @@ class Detections:
     def __len__(self) -> int:
         return int(self.xy.shape[0])
 
+    def subset(self, keep: np.ndarray) -> "Detections":
+        """The detections where ``keep`` (bool, N) holds, same label image and thresholds."""
+        k = np.asarray(keep, dtype=bool)
+        opt = {f: (None if getattr(self, f) is None else getattr(self, f)[k])
+               for f in ("significance", "blobness", "change")}
+        return Detections(self.xy[k], self.area[k], self.peak[k], self.flux[k], self.bbox[k],
+                          self.component[k], self.labels, self.threshold, self.threshold_map, **opt)
+
     def thresholds(self) -> np.ndarray:
         """The threshold each detection passed (the local map at its position, if any)."""
         if self.threshold_map is None:

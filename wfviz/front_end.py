@@ -28,7 +28,7 @@ import numpy as np
 from wfviz.background import TemporalBackground, change as scene_change, gain, suppress_background
 from wfviz.config import GEWCConfig
 from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, score_detections
+from wfviz.detection import Detections, detect, sample_at, score_detections
 from wfviz.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.noise import NoiseEstimate, NoiseModel, TailCalibration
@@ -71,6 +71,19 @@ class FrontEndResult:
     bad_pixels_changed: bool
 
 
+def _unknown_at(change: np.ndarray, pixels: np.ndarray) -> np.ndarray:
+    """``change`` with NaN (unknown) in the 3 × 3 neighbourhood of each (row, col) of ``pixels``
+    (flagged defects: the change map is built from the raw frame, so a defect's own flicker
+    would otherwise be detected as a change)."""
+    out = change.copy()
+    h, w = out.shape
+    d = np.array([(i, j) for i in (-1, 0, 1) for j in (-1, 0, 1)])
+    rc = (pixels[:, None, :] + d[None, :, :]).reshape(-1, 2)
+    rc = rc[(rc[:, 0] >= 0) & (rc[:, 0] < h) & (rc[:, 1] >= 0) & (rc[:, 1] < w)]
+    out[rc[:, 0], rc[:, 1]] = np.nan
+    return out
+
+
 class FrontEnd:
     """Streams frames through the shared stages (module docstring). ``config`` needs the
     sections ``defects``, ``circle``, ``horizon``, ``suppression``, ``noise``, ``detection`` and
@@ -109,7 +122,8 @@ class FrontEnd:
              k_map: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
         """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
         ``windows`` (a mask): detect only there, with the noise statistics of the last frame
-        searched whole (a tracker's search windows); the temporal background still learns every
+        searched whole (a tracker's search windows; with a global or box threshold, this
+        frame's threshold over the whole search region); the temporal background still learns every
         frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
         ``k_map(camera)``: called once the camera motion is known, the detection threshold of
         every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.detection.detect`)."""
@@ -147,9 +161,18 @@ class FrontEnd:
             noise = self._noise
             lap("noise")
             change = self._change(raw, img, suppressed, camera, windows is None and due)
+            if change is not None and len(self.bad.flagged):
+                change = _unknown_at(change, self.bad.flagged)
             lap("change")
         kmap = k_map(camera) if k_map is not None and noise is not None else None
-        dets = detect(suppressed, region, c.detection, self._zones, noise, change, kmap)
+        if windows is not None and c.detection.mode != "cfar":
+            # a global or box threshold is a statistic of the whole search region, not of the
+            # windows (whose own statistics a bright target inflates): detect there, keep the
+            # candidates inside the windows
+            dets = detect(suppressed, self._region, c.detection, self._zones, noise, change, kmap)
+            dets = dets.subset(sample_at(windows, dets.xy))
+        else:
+            dets = detect(suppressed, region, c.detection, self._zones, noise, change, kmap)
         dets = score_detections(dets, img, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)

@@ -544,20 +544,26 @@ class TrackManager:
             mo = track_score.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
                                     tc.position_noise)
             confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
-        drop = ~conf & (self.score <= th.drop)
-        lost = conf & (self.score <= th.delete)
+        tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
+        drop = ~conf & (self.score <= th.drop + tie)
+        lost = conf & (self.score <= th.delete + tie)
         why = [""] * n
         for i in np.nonzero(confirm)[0].tolist():
             why[i] = (f": persistence {self.score[i]:.1f} and not clutter {self.clutter_score[i]:.1f} "
                       f">= {th.confirm:.1f}")
+        for i in np.nonzero(drop)[0].tolist():
+            why[i] = (f"dropped: persistence {self.score[i]:.1f} fell to {th.drop:.1f} (noise, not a target) "
+                      f"after {self.hits[i]} hits")
         for i in np.nonzero(lost)[0].tolist():
             why[i] = (f"deleted: score {self.score[i]:.1f} fell {th.confirm - self.score[i]:.1f} below "
                       f"confirmation after {self.misses[i]} consecutive misses ({self.hits[i]} hits)")
         return confirm, drop | lost, why
 
     def _gone(self, measured: np.ndarray, reported: np.ndarray) -> np.ndarray:
-        """Coasting tracks (meeting mode included) whose position left the image, or whose
-        position uncertainty (``gate_sigma`` standard deviations) outgrew ``kalman.coast_limit``."""
+        """Coasting tracks (meeting mode included) whose position left the image, or (not in
+        meeting mode: its extrapolation does not use the filter's covariance, which is reset when
+        the meeting ends) whose position uncertainty (``gate_sigma`` standard deviations)
+        outgrew ``kalman.coast_limit``."""
         n = len(self)
         out = np.zeros(n, dtype=bool)
         if self.frame_shape is not None:
@@ -565,7 +571,7 @@ class TrackManager:
             out = ((reported[:, 0] < -0.5) | (reported[:, 0] > w - 0.5)
                    | (reported[:, 1] < -0.5) | (reported[:, 1] > h - 0.5))
         spread = self.kcfg.gate_sigma * np.sqrt(np.maximum(self.P[:, 0, 0], self.P[:, 1, 1]))
-        return ~measured & (out | (spread > self.kcfg.coast_limit))
+        return ~measured & (out | ((spread > self.kcfg.coast_limit) & ~self.meeting))
 
     def _push_motion(self, rows: np.ndarray, z: np.ndarray) -> None:
         """Record the measured scene positions (image position minus the camera offset)."""

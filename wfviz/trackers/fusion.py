@@ -376,6 +376,7 @@ class FusionTracker:
         nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         taken = {**pairs, **recovered}
         mgr.frame_shape = shape
+        self._restart(preds, recovered, velocities, feats)  # before the update: no jump to score
         events = events_pre + mgr.update(
             meas, births,
             scores=None if sig is None else {i: float(sig[j]) for i, j in taken.items()},
@@ -384,7 +385,6 @@ class FusionTracker:
             birth_shapes=None if blob is None else blob[born_idx],
             density=self.density.at(pred_xy), birth_density=self.density.at(births),
             novelty={i: float(nov[j]) for i, j in taken.items()}, birth_novelty=nov[born_idx])
-        self._restart(preds, recovered, velocities, feats)
         events += [TrackEvent(frame.index, "recovered", preds[i].track_id,
                               f"track {preds[i].track_id} recovered by global detection at "
                               f"({feats.centre[j, 0]:.1f}, {feats.centre[j, 1]:.1f}), "
