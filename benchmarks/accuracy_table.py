@@ -5,7 +5,7 @@ markers of docs/accuracy.md. Run from the repository root:
 
     python benchmarks/accuracy_table.py            # all scenarios, seed 0
     python benchmarks/accuracy_table.py --long-frames 300 --seeds 0 1 2
-    python benchmarks/accuracy_table.py --trackers gewc --config configs/real-gewc.toml  # prints only
+    python benchmarks/accuracy_table.py --trackers gewc --config my.toml  # prints only
 """
 
 from __future__ import annotations

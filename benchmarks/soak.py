@@ -2,7 +2,7 @@
 
     python benchmarks/soak.py                          # 20 000 frames of long-1024 (~15 min)
     python benchmarks/soak.py --frames 2000 --every 100 --json soak.json
-    python benchmarks/soak.py --config configs/real-gewc.toml   # every optional stage on
+    python benchmarks/soak.py --config my.toml                  # e.g. with optional stages on
 
 Runs :func:`wfviz.run.run` (what `wfviz track` calls) on the lazily generated scenario with a
 tracks CSV, samples every ``--every`` frames the live tracks, the tracks the manager keeps, the

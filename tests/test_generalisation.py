@@ -31,6 +31,23 @@ def mover(n: int, start: tuple[float, float], v: tuple[float, float]) -> np.ndar
     return np.asarray(start) + t * np.asarray(v)
 
 
+def ramp_frames() -> list[np.ndarray]:
+    rng = np.random.default_rng(1)
+    sigma = np.linspace(3.0, 30.0, W)[None, :]
+    return [to_u16(1000.0 + sigma * rng.standard_normal((H, W))) for _ in range(80)]
+
+
+def leaving_frames() -> tuple[list[np.ndarray], np.ndarray]:
+    rng = np.random.default_rng(4)
+    truth = mover(60, (200.0, 120.0), (4.0, 0.5))
+    frames = []
+    for x, y in truth:
+        img = np.full((H, W), 1000.0)
+        add_gaussian_spot(img, x, y, 150.0, 0.8)
+        frames.append(to_u16(img + 10.0 * rng.standard_normal(img.shape)))
+    return frames, truth
+
+
 def settled_hits(results: list, truth: np.ndarray, settle: int = 6, gate: float = 3.0) -> float:
     """Share of frames after the first ``settle`` with a confirmed track within ``gate`` px."""
     hits = [any(t.confirmed and np.hypot(t.x - x, t.y - y) <= gate for t in r.tracks)
@@ -52,10 +69,7 @@ def false_confirmed(results: list, truth: np.ndarray | None, gate: float = 5.0) 
 def test_noise_ramp_gives_no_confirmed_track(tracker_name: str) -> None:
     """Noise σ growing 10x from left to right (a global threshold is too low on the right and
     too high on the left): no confirmed track, and the false detections spread evenly."""
-    rng = np.random.default_rng(1)
-    sigma = np.linspace(3.0, 30.0, W)[None, :]
-    frames = [to_u16(1000.0 + sigma * rng.standard_normal((H, W))) for _ in range(80)]
-    results = run(make_tracker(tracker_name), frames)
+    results = run(make_tracker(tracker_name), ramp_frames())
     assert false_confirmed(results, None) == 0
     left = sum(int((r.detections.xy[:, 0] < W / 2).sum()) for r in results[20:])
     right = sum(int((r.detections.xy[:, 0] >= W / 2).sum()) for r in results[20:])
@@ -108,16 +122,45 @@ def test_fisheye_without_horizon() -> None:
 def test_target_leaving_the_image_leaves_no_row_outside(tracker_name: str) -> None:
     """A target that flies out of the right edge: its track never reports a position outside
     the image (x in [-0.5, W - 0.5], y in [-0.5, H - 0.5]) and is gone within a few frames."""
-    rng = np.random.default_rng(4)
-    truth = mover(60, (200.0, 120.0), (4.0, 0.5))  # leaves at about frame 30
-    frames = []
-    for x, y in truth:
-        img = np.full((H, W), 1000.0)
-        add_gaussian_spot(img, x, y, 150.0, 0.8)
-        frames.append(to_u16(img + 10.0 * rng.standard_normal(img.shape)))
+    frames, _ = leaving_frames()  # leaves the image at about frame 30
     results = run(make_tracker(tracker_name), frames)
     outside = [(r.index, t.x, t.y) for r in results for t in r.tracks
                if not (-0.5 <= t.x <= W - 0.5 and -0.5 <= t.y <= H - 0.5)]
     assert outside == []
     assert any(t.confirmed for r in results[15:25] for t in r.tracks)  # it was tracked
     assert not any(t.confirmed for r in results[40:] for t in r.tracks)  # and is gone
+
+
+# -- the same scenes through the command line (`wfviz track STACK.npy`, default configuration) --
+
+def cli_tracks(tmp_path, frames: list[np.ndarray]) -> list[dict]:
+    """``wfviz track`` on the frames saved as a .npy stack; the tracks CSV's rows."""
+    import csv
+    import subprocess
+    import sys
+
+    stack = tmp_path / "clip.npy"
+    np.save(stack, np.stack(frames))
+    out = tmp_path / "tracks.csv"
+    p = subprocess.run([sys.executable, "-m", "wfviz", "track", str(stack), "--tracks", str(out)],
+                       capture_output=True, text=True, timeout=300)
+    assert p.returncode == 0, p.stderr
+    with out.open(newline="") as f:
+        return list(csv.DictReader(f))
+
+
+def test_cli_noise_ramp_gives_no_confirmed_track(tmp_path) -> None:
+    rows = cli_tracks(tmp_path, ramp_frames())
+    assert [r for r in rows if r["confirmed"] == "1"] == []
+
+
+def test_cli_track_leaving_the_image_is_deleted_and_no_row_lies_outside(tmp_path) -> None:
+    frames, truth = leaving_frames()
+    rows = cli_tracks(tmp_path, frames)
+    outside = [r for r in rows if not (-0.5 <= float(r["x"]) <= W - 0.5 and -0.5 <= float(r["y"]) <= H - 0.5)]
+    assert outside == []
+    confirmed = [r for r in rows if r["confirmed"] == "1"]
+    near = [r for r in confirmed if np.hypot(float(r["x"]) - truth[int(r["frame"]), 0],
+                                            float(r["y"]) - truth[int(r["frame"]), 1]) < 3]
+    assert any(15 <= int(r["frame"]) < 25 for r in near)  # it was tracked
+    assert not any(int(r["frame"]) >= 40 for r in confirmed)  # and deleted once it left

@@ -170,3 +170,9 @@ def test_gewc_recording_logs_the_front_end_entities(tmp_path: Path) -> None:
     assert set(moving.values()) <= {0.0, 1.0}
     hover = {name.split(":")[-1] for name in names["/camera/detections"]}
     assert {"significance", "change"} <= hover, hover
+    # geometry confidences, per update: the circle with the first mask, the horizon every
+    # horizon.every frames (0, 10, ...: frame 0 only in 10 frames)
+    assert sorted(rows["/geometry/circle_confidence"]) == [0]
+    assert sorted(rows["/geometry/horizon_confidence"]) == [0]
+    for path in ("/geometry/circle_confidence", "/geometry/horizon_confidence"):
+        assert all(0.0 <= v <= 1.0 for v in _scalars(rrd, path).values()), path

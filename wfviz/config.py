@@ -152,7 +152,7 @@ class TrackingConfig:
     reacquire: float = field(default=15.0, metadata=_range(0.0, None))  # px; 0: off (not in the paper)
     # a confirmed track's gate is searched at a lower threshold, such that noise alone crosses
     # it somewhere in the gate with this probability (track_score.gate_threshold); 0: off
-    gate_false_alarm: float = field(default=0.05, metadata=_range(0.0, 0.5))
+    gate_false_alarm: float = field(default=0.0, metadata=_range(0.0, 0.5))
     min_displacement: float = field(default=0.0, metadata=_range(0.0, None))
     max_misses: int = field(default=3, metadata=_range(1, None))
     safety_distance: float = field(default=20.0, metadata=_range(0.0, None))

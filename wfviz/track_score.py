@@ -91,16 +91,22 @@ def position_score(innovation: np.ndarray, S_inv: np.ndarray, half: np.ndarray) 
     return np.log(area) + 0.5 * np.log(det) - np.log(2.0 * np.pi) - 0.5 * d2
 
 
-def amplitude_score(z: np.ndarray, k: float, z_max: float = 1000.0, cap: float = EVIDENCE_CAP) -> np.ndarray:
+def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
+                    cap: float = EVIDENCE_CAP) -> np.ndarray:
     """ln of the likelihood ratio of a hit's significance z (local noise σ, :mod:`wfviz.noise`):
-    a target's significance is taken uniform in ln z between the detection threshold ``k`` and
-    ``z_max``; noise that crossed the threshold is Gaussian beyond it, density φ(z) / Q(k).
-    Bounded to ±``cap`` per hit (real noise tails are heavier than the model's). NaN: 0."""
+    a target's significance is taken uniform in ln z between the detection threshold ``k`` (per
+    hit where a gate was searched deeper, :func:`gate_threshold`) and ``z_max``; noise that
+    crossed the threshold is Gaussian beyond it, density φ(z) / Q(k). A hit just above a lowered
+    threshold is thus evidence for noise, a bright one for a target. Bounded to ±``cap`` per
+    hit (real noise tails are heavier than the model's). NaN: 0."""
+    from scipy.special import log_ndtr
+
     z = np.asarray(z, dtype=np.float64)
+    k = np.broadcast_to(np.asarray(k, dtype=np.float64), z.shape)
     ok = np.isfinite(z) & (z > 0)
     zz = np.where(ok, np.maximum(z, k), k)
-    log_f1 = -np.log(zz) - math.log(math.log(max(z_max / k, 1.0 + 1e-9)))
-    log_f0 = -0.5 * zz * zz - 0.5 * math.log(2 * math.pi) - math.log(max(_q(k), 1e-300))
+    log_f1 = -np.log(zz) - np.log(np.log(np.maximum(z_max / k, 1.0 + 1e-9)))
+    log_f0 = -0.5 * zz * zz - 0.5 * math.log(2 * math.pi) - log_ndtr(-k)
     return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
 
 

@@ -372,6 +372,7 @@ class TrackManager:
                density: np.ndarray | None = None, birth_density: np.ndarray | None = None,
                novelty: dict[int, float] | None = None, birth_novelty: np.ndarray | None = None,
                prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None,
+               gate_k: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
 
@@ -386,7 +387,9 @@ class TrackManager:
         ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
         above ``delete_static`` is deleted. ``gate_fa``: per track, the probability that noise
         crossed the threshold in its gate where it was lowered (``tracking.gate_false_alarm``;
-        0 elsewhere): a hit's false-alarm probability is at least that. Returns the frame's
+        0 elsewhere): a hit's false-alarm probability is at least that; ``gate_k``: the threshold
+        (σ) each track's gate was searched at (its hit's significance is scored from there).
+        Returns the frame's
         events (including meeting events from :meth:`predict`).
         """
         scores, shapes = scores or {}, shapes or {}
@@ -428,7 +431,7 @@ class TrackManager:
             z, nov = np.full(n, np.nan), np.full(n, np.nan)
             z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
             nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
-            confirm, delete, why = self._sequential(measured, density, z, nov, prior, gate_fa)
+            confirm, delete, why = self._sequential(measured, density, z, nov, prior, gate_fa, gate_k)
         else:
             confirm, delete, why = self._m_hits(measured, missed, moved, reported, clutter)
         gone = self._gone(measured, reported) & ~delete
@@ -499,8 +502,8 @@ class TrackManager:
         return confirm, delete, why
 
     def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
-                    nov: np.ndarray, prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                    nov: np.ndarray, prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None,
+                    gate_k: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """The two sequential tests of :mod:`wfviz.track_score` (``tracking.confirm = "sprt"``):
         ``score`` against noise (hits and misses, where the hits lie in the gate) and
         ``clutter_score`` against static clutter (how significant and how new the hits are).
@@ -524,7 +527,9 @@ class TrackManager:
         m = np.nonzero(measured)[0]
         if m.size:
             change[m] += track_score.position_score(self.innovation[m], self._S_inv[m], halves[m])
-            change[m] += track_score.amplitude_score(z[m], self.detection_threshold)
+            k_hit = (np.minimum(np.asarray(gate_k, dtype=np.float64)[m], self.detection_threshold)
+                     if gate_k is not None and len(gate_k) == n else self.detection_threshold)
+            change[m] += track_score.amplitude_score(z[m], k_hit)
             clutter[m] = track_score.change_evidence(nov[m], self.detection_threshold,
                                                      tc.static_change_rate, tc.target_change_rate)
         # a meeting track takes no measurement: no evidence while a detection lies near its

@@ -29,7 +29,7 @@ class GEWCRecorder(Recorder):
         log_geometry(rec, result)
         if images:
             self.image("suppressed/image", result.suppressed)
-        if result.clutter is not None:  # static clutter stage (configs/real-gewc.toml)
+        if result.clutter is not None:  # static clutter stage (clutter.enabled)
             static = result.clutter == 1
             rec.log("camera/clutter", rr.Points2D(
                 result.detections.xy[static].astype(np.float32), radii=2.5,

@@ -17,6 +17,7 @@ import rerun.blueprint as rrb
 from wfviz.clip import ClipNote
 from wfviz.evaluate import FrameErrors
 from wfviz.frames import Frame
+from wfviz.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult
 
 APPLICATION_ID = "wfviz"
@@ -122,15 +123,22 @@ def log_geometry(rec: rr.RecordingStream, result: object) -> None:
         a = np.linspace(0, 2 * np.pi, 181)
         rec.log("camera/imaging_circle", rr.LineStrips2D(
             [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
-            labels=[f"R={c.radius:.1f}"] if c else None, colors=MASK_COLOR[:3], radii=0.5), static=True)
+            labels=[f"R={c.radius:.1f} confidence {c.confidence:.2f}"] if c else None, colors=MASK_COLOR[:3],
+            radii=0.5), static=True)
+        rec.log("geometry/circle_confidence", rr.Scalars(float(c.confidence) if c else 0.0))
     if result.bad_pixels_changed:
         bp = result.bad_pixels
         rec.log("camera/bad_pixels", rr.Points2D(bp[:, ::-1].astype(np.float32) if len(bp) else np.zeros((0, 2)),
                                                  colors=(255, 60, 60), radii=2.0))
     if result.horizon_updated:
-        line = result.horizon.polyline() if result.horizon is not None else None
+        h = result.horizon
+        line = h.polyline() if h is not None else None
+        used = horizon_confident(h)
+        label = None if h is None else [f"confidence {h.confidence:.2f} ({'used' if used else 'ignored'})"]
         rec.log("camera/horizon", rr.LineStrips2D(
-            [line] if line is not None and len(line) else [], colors=(0, 255, 120), radii=0.8))
+            [line] if line is not None and len(line) else [], labels=label if line is not None and len(line) else None,
+            colors=(0, 255, 120) if used else (120, 120, 120), radii=0.8))
+        rec.log("geometry/horizon_confidence", rr.Scalars(float(h.confidence) if h is not None else 0.0))
 
 
 class ColumnBuffer:
@@ -230,6 +238,7 @@ class Recorder:
         self.image_every = image_every
         self.jpeg_quality = jpeg_quality
         self._jpeg_noted = False
+        self._noise_logged: object | None = None  # the noise estimate last logged as an image
         self._trails: dict[int, deque] = {}
         self._trail_length = trail_length
         self._labelled: set[int] = set()
@@ -306,16 +315,17 @@ class Recorder:
         self.frames_logged += 1
         self.columns.end_frame()
 
-    def image(self, path: str, image: np.ndarray) -> None:
-        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set and it is 8-bit.
+    def image(self, path: str, image: np.ndarray, lossless: bool = False) -> None:
+        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set, it is 8-bit and not
+        ``lossless`` (a map of measured values, not a picture).
 
         Sent as its own chunk right away, past the batcher: megabytes of pixels would otherwise
         fill the batch and flush every overlay entity with it, making many small chunks."""
-        if self.jpeg_quality is not None and image.dtype != np.uint8 and not self._jpeg_noted:
+        if self.jpeg_quality is not None and image.dtype != np.uint8 and not self._jpeg_noted and not lossless:
             self._jpeg_noted = True
             warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
                           "stay lossless", ClipNote, stacklevel=2)
-        if self.jpeg_quality is None or image.dtype != np.uint8:
+        if self.jpeg_quality is None or image.dtype != np.uint8 or lossless:
             archetype: rr.AsComponents = rr.Image(image)
         else:
             ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
@@ -357,8 +367,11 @@ class Recorder:
         whose results carry them (:mod:`wfviz.front_end`)."""
         noise = getattr(result, "noise", None)
         if noise is not None:
-            if images:  # half precision: a smooth map, and a quarter of the raw frame's bytes
-                self.image("suppressed/noise", noise.sigma.astype(np.float16))
+            # with the images, when re-estimated (noise.every frames; the viewer shows the latest);
+            # half precision: a smooth map, and a quarter of the raw frame's bytes
+            if images and noise is not self._noise_logged:
+                self.image("suppressed/noise", noise.sigma.astype(np.float16), lossless=True)
+                self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
         camera = getattr(result, "camera", None)
         if camera is not None:

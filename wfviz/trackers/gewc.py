@@ -124,7 +124,7 @@ class GEWCTracker:
             birth_clutter=None if labels is None else labels[born],
             density=self.density.at(pred_xy), birth_density=self.density.at(dets.xy[born]),
             novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born],
-            gate_fa=self._deep_fa(preds))
+            gate_fa=self._deep_fa(preds), gate_k=self._deep_k(preds))
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -146,7 +146,18 @@ class GEWCTracker:
         return np.array([(p.confirmed or DEEP_TENTATIVE) and not p.meeting for p in preds], dtype=bool)
 
     def _deep_fa(self, preds: list) -> np.ndarray:
+        """Per prediction: noise's chance of a hit in its gate where the gate looked deeper."""
         return np.where(self._looks_deeper(preds), self.config.tracking.gate_false_alarm, 0.0)
+
+    def _deep_k(self, preds: list) -> np.ndarray:
+        """Per prediction: the threshold (σ) its gate was searched at."""
+        c = self.config
+        k = np.full(len(preds), c.detection.k_sigma)
+        deep = self._looks_deeper(preds)
+        if deep.any():
+            half = np.array([[p.half_w, p.half_h] for p in preds])[deep]
+            k[deep] = gate_threshold(half, c.tracking.gate_false_alarm, c.detection.k_sigma)
+        return k
 
     def _gate_k(self, preds: list, shape: tuple[int, int]) -> np.ndarray | None:
         """Detection threshold (σ) of every pixel: ``detection.k_sigma``, lower in the gates of
