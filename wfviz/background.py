@@ -34,8 +34,8 @@ class TemporalBackground:
     first ``memory`` frames equally weighted, then exponentially with weight 1 / ``memory``)
     delayed by ``lag`` frames: fixed-pattern noise averages out of it, and a target moving more
     than its own size in ``lag`` frames is not in it. A moving camera uses the single image
-    ``lag`` frames back, moved by the camera's offset to the nearest pixel and grown by one pixel
-    (a 3 × 3 maximum: registration to the pixel is not exact). Before ``lag`` frames have been
+    ``lag`` frames back, moved by the camera's offset with bilinear interpolation (pixels it
+    does not cover are NaN, i.e. unknown). Before ``lag`` frames have been
     seen the oldest frame stands in (the lag is as long as the clip so far); on the first frame
     there is no background (None).
     """
@@ -115,14 +115,3 @@ def _moved(image: np.ndarray, d: np.ndarray) -> np.ndarray:
                          borderValue=np.nan)
     return out
 
-
-def _shifted(image: np.ndarray, d: np.ndarray) -> np.ndarray:
-    """``image`` moved by ``d`` (x, y) rounded to whole pixels; uncovered pixels are NaN."""
-    dx, dy = int(round(float(d[0]))), int(round(float(d[1])))
-    h, w = image.shape
-    out = np.full_like(image, np.nan)
-    ys, yd = (slice(0, h - dy), slice(dy, h)) if dy >= 0 else (slice(-dy, h), slice(0, h + dy))
-    xs, xd = (slice(0, w - dx), slice(dx, w)) if dx >= 0 else (slice(-dx, w), slice(0, w + dx))
-    if abs(dx) < w and abs(dy) < h:
-        out[yd, xd] = image[ys, xs]
-    return out

@@ -56,23 +56,6 @@ class Detections:
         return sample_at(self.threshold_map, self.xy)
 
 
-def sample_max(values: np.ndarray, xy: np.ndarray) -> np.ndarray:
-    """Largest finite value of ``values`` among the 3 × 3 pixels around each point ``xy`` (N, 2)
-    (NaN where all nine are NaN)."""
-    if len(xy) == 0:
-        return np.zeros(0)
-    h, w = values.shape
-    r = np.clip(np.rint(xy[:, 1]).astype(np.int64), 0, h - 1)
-    c = np.clip(np.rint(xy[:, 0]).astype(np.int64), 0, w - 1)
-    d = np.arange(-1, 2)
-    rr = np.clip(r[:, None, None] + d[None, :, None], 0, h - 1)
-    cc = np.clip(c[:, None, None] + d[None, None, :], 0, w - 1)
-    v = values[rr, cc].reshape(len(xy), 9).astype(np.float64)
-    with np.errstate(invalid="ignore"):
-        ok = np.isfinite(v).any(axis=1)
-        return np.where(ok, np.nanmax(np.where(np.isfinite(v), v, -np.inf), axis=1), np.nan)
-
-
 def sample_at(values: np.ndarray, xy: np.ndarray) -> np.ndarray:
     """``values`` at the pixels nearest the points ``xy`` (N, 2) = (x, y), clipped to the frame."""
     r = np.clip(np.round(xy[:, 1]).astype(np.int64), 0, values.shape[0] - 1)

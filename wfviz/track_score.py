@@ -110,25 +110,6 @@ def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
     return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
 
 
-def change_score(z_change: np.ndarray, z: np.ndarray, cap: float = EVIDENCE_CAP) -> np.ndarray:
-    """ln of the likelihood ratio of a hit's change significance (what is new at its place in the
-    scene, :class:`wfviz.background.TemporalBackground`, in its own noise σ) against static
-    clutter. Static clutter: the change is noise, N(0, 1). A target: the change is N(μ, 1) with μ
-    anywhere between 0 (it has not moved off its earlier image) and the hit's significance ``z``
-    (it has moved right away), uniformly. Bounded to ±``cap`` per hit; NaN: 0."""
-    zc = np.asarray(z_change, dtype=np.float64)
-    zs = np.maximum(np.asarray(z, dtype=np.float64), 1e-3)
-    ok = np.isfinite(zc) & np.isfinite(zs)
-    zc = np.where(ok, np.clip(zc, -8.0, 8.0 + zs), 0.0)
-    from scipy.special import log_ndtr
-
-    # ln[(Φ(zc) - Φ(zc - zs)) / zs] - ln φ(zc), with the difference of Φ in logs for stability
-    a, b = log_ndtr(zc), log_ndtr(zc - zs)
-    log_num = a + np.log1p(-np.exp(np.minimum(b - a, -1e-12))) - np.log(zs)
-    log_phi = -0.5 * zc * zc - 0.5 * math.log(2 * math.pi)
-    return np.where(ok, np.clip(log_num - log_phi, -cap, cap), 0.0)
-
-
 def change_evidence(z_change: np.ndarray, threshold: float, q_static: float, q_target: float) -> np.ndarray:
     """ln of the likelihood ratio that a hit's change significance gives against static clutter,
     in Wald's form for a yes/no observation: the hit has *changed* when its change significance

@@ -167,6 +167,9 @@ class TrackManager:
         self.kcfg, self.tcfg = kcfg, tcfg
         self.model = kalman.CVModel.make(kcfg.q, kcfg.r)
         self.P0 = kalman.initial_covariance(kcfg.r, kcfg.initial_velocity_std)
+        S0 = kalman.innovation_covariance(kalman.predict(np.zeros((1, 4)), self.P0[None], self.model)[1],
+                                          self.model)
+        self._birth_half = self._gate_half_sizes(S0)  # a new track's first gate
         self._next_id = 1
         self._frame = 0
         self._events: list[TrackEvent] = []
@@ -371,7 +374,6 @@ class TrackManager:
                shapes: dict[int, float] | None = None, birth_shapes: np.ndarray | None = None,
                density: np.ndarray | None = None, birth_density: np.ndarray | None = None,
                novelty: dict[int, float] | None = None, birth_novelty: np.ndarray | None = None,
-               prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None,
                gate_k: np.ndarray | None = None,
                ) -> list[TrackEvent]:
         """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
@@ -385,12 +387,11 @@ class TrackManager:
         undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
         ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
         ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
-        above ``delete_static`` is deleted. ``gate_fa``: per track, the probability that noise
-        crossed the threshold in its gate where it was lowered (``tracking.gate_false_alarm``;
-        0 elsewhere): a hit's false-alarm probability is at least that; ``gate_k``: the threshold
-        (σ) each track's gate was searched at (its hit's significance is scored from there).
-        Returns the frame's
-        events (including meeting events from :meth:`predict`).
+        above ``delete_static`` is deleted. ``gate_k``: the threshold (σ) each track's gate was
+        searched at (:func:`wfviz.track_score.gate_threshold`); where it is below the frame's, a
+        hit's false-alarm probability is at least ``tracking.gate_false_alarm`` and its
+        significance is scored from there. Returns the frame's events (including meeting events
+        from :meth:`predict`).
         """
         scores, shapes = scores or {}, shapes or {}
         tc = self.tcfg
@@ -431,7 +432,7 @@ class TrackManager:
             z, nov = np.full(n, np.nan), np.full(n, np.nan)
             z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
             nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
-            confirm, delete, why = self._sequential(measured, density, z, nov, prior, gate_fa, gate_k)
+            confirm, delete, why = self._sequential(measured, density, z, nov, gate_k)
         else:
             confirm, delete, why = self._m_hits(measured, missed, moved, reported, clutter)
         gone = self._gone(measured, reported) & ~delete
@@ -502,15 +503,14 @@ class TrackManager:
         return confirm, delete, why
 
     def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
-                    nov: np.ndarray, prior: np.ndarray | None = None, gate_fa: np.ndarray | None = None,
-                    gate_k: np.ndarray | None = None) -> tuple[np.ndarray, np.ndarray, list[str]]:
+                    nov: np.ndarray, gate_k: np.ndarray | None = None
+                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
         """The two sequential tests of :mod:`wfviz.track_score` (``tracking.confirm = "sprt"``):
         ``score`` against noise (hits and misses, where the hits lie in the gate) and
         ``clutter_score`` against static clutter (how significant and how new the hits are).
         ``density``: false detections per pixel at each track; ``z``, ``nov``: each hit's
-        significance and novelty; ``prior``: ln prior odds of a target at each track (≤ 0; the
-        clutter test must make up for it). A track is confirmed when both reach the
-        confirmation level."""
+        significance and novelty; ``gate_k``: see :meth:`update`. A track is confirmed when
+        both reach the confirmation level."""
         tc = self.tcfg
         n = len(self)
         th = track_score.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
@@ -520,16 +520,17 @@ class TrackManager:
             else np.full((n, 2), self.kcfg.gate_max)
         lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
         p_fa = track_score.gate_false_alarm(lam, halves)
-        if gate_fa is not None and len(gate_fa) == n:
-            p_fa = np.maximum(p_fa, gate_fa)
+        deep = gate_k is not None and len(gate_k) == n
+        k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), self.detection_threshold) if deep
+                  else np.full(n, self.detection_threshold))
+        if deep:  # where the gate was searched deeper, noise puts a hit there this often
+            p_fa = np.where(k_gate < self.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
         change = track_score.score_change(measured, tc.p_detect, p_fa)
         clutter = np.zeros(n)
         m = np.nonzero(measured)[0]
         if m.size:
             change[m] += track_score.position_score(self.innovation[m], self._S_inv[m], halves[m])
-            k_hit = (np.minimum(np.asarray(gate_k, dtype=np.float64)[m], self.detection_threshold)
-                     if gate_k is not None and len(gate_k) == n else self.detection_threshold)
-            change[m] += track_score.amplitude_score(z[m], k_hit)
+            change[m] += track_score.amplitude_score(z[m], k_gate[m])
             clutter[m] = track_score.change_evidence(nov[m], self.detection_threshold,
                                                      tc.static_change_rate, tc.target_change_rate)
         # a meeting track takes no measurement: no evidence while a detection lies near its
@@ -542,8 +543,7 @@ class TrackManager:
             self.clutter_score[m] = self.clutter_hits[m].sum(axis=1)
         conf = self.confirmed
         self.score[conf] = np.minimum(self.score[conf], th.confirm)
-        need = th.confirm + (0.0 if prior is None else -np.minimum(np.asarray(prior, dtype=np.float64), 0.0))
-        confirm = (measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= need))
+        confirm = measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm)
         if tc.require_motion and confirm.any():
             r = np.nonzero(confirm)[0]
             mo = track_score.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
@@ -635,9 +635,7 @@ class TrackManager:
         new["motion_xy"][:, -1] = births - self.offset
         new["motion_ok"][:, -1] = True
         if self.tcfg.confirm == "sprt":  # the birth detection is a hit in the next frame's first gate
-            S0 = kalman.innovation_covariance(kalman.predict(np.zeros((1, 4)), self.P0[None], self.model)[1],
-                                              self.model)
-            half = self._gate_half_sizes(S0)
+            half = self._birth_half
             lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
             p_fa = track_score.gate_false_alarm(lam, np.repeat(half, k, axis=0))
             new["score"][:] = track_score.score_change(np.ones(k, dtype=bool), self.tcfg.p_detect, p_fa)

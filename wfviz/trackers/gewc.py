@@ -53,9 +53,6 @@ class GEWCResult(FrameResult):
     thresholds: Thresholds | None = None  # of the sequential test (tracking.confirm = "sprt")
 
 
-DEEP_TENTATIVE = False  # tentative tracks look deeper too
-
-
 class GEWCTracker:
     """Streams frames through the GEWC pipeline; ``step`` returns a :class:`GEWCResult`."""
 
@@ -82,15 +79,17 @@ class GEWCTracker:
         timer = StageTimer()
         lap = timer.lap
         predicted: list = []
+        gate_k: list = [None]
 
         def k_map(camera: CameraState | None) -> np.ndarray | None:  # camera known: predict
             if camera is not None:
                 self.manager.shift(*camera.shift)
             predicted.extend(self.manager.predict(frame.index))
-            return self._gate_k(predicted, frame.image.shape)
+            gate_k[0] = self._gate_thresholds(predicted)
+            return None if gate_k[0] is None else self._threshold_map(predicted, gate_k[0], frame.image.shape)
 
-        fe = self.front.step(frame.image, lap, k_map=k_map)
-        if not predicted:  # no noise estimate: k_map was not called
+        fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None)
+        if not predicted:  # k_map was not called
             if fe.camera is not None:
                 self.manager.shift(*fe.camera.shift)
             predicted.extend(self.manager.predict(frame.index))
@@ -124,7 +123,7 @@ class GEWCTracker:
             birth_clutter=None if labels is None else labels[born],
             density=self.density.at(pred_xy), birth_density=self.density.at(dets.xy[born]),
             novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born],
-            gate_fa=self._deep_fa(preds), gate_k=self._deep_k(preds))
+            gate_k=gate_k[0])
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -138,46 +137,35 @@ class GEWCTracker:
             clutter=labels, noise=fe.noise, camera=fe.camera, thresholds=self.manager.thresholds,
         )
 
-    def _looks_deeper(self, preds: list) -> np.ndarray:
-        """Which predictions search their gate at a lower threshold (:meth:`_gate_k`)."""
+    def _gate_thresholds(self, preds: list) -> np.ndarray | None:
+        """Per prediction, the threshold (σ) its gate is searched at: lower for confirmed tracks
+        not in meeting mode (:func:`wfviz.track_score.gate_threshold`, ``tracking.gate_false_alarm``),
+        ``detection.k_sigma`` for the others; None when no gate looks deeper."""
         c = self.config
-        if c.tracking.gate_false_alarm <= 0 or c.tracking.confirm != "sprt":
-            return np.zeros(len(preds), dtype=bool)
-        return np.array([(p.confirmed or DEEP_TENTATIVE) and not p.meeting for p in preds], dtype=bool)
-
-    def _deep_fa(self, preds: list) -> np.ndarray:
-        """Per prediction: noise's chance of a hit in its gate where the gate looked deeper."""
-        return np.where(self._looks_deeper(preds), self.config.tracking.gate_false_alarm, 0.0)
-
-    def _deep_k(self, preds: list) -> np.ndarray:
-        """Per prediction: the threshold (σ) its gate was searched at."""
-        c = self.config
+        if c.tracking.confirm != "sprt":
+            return None
+        deep = np.array([p.confirmed and not p.meeting for p in preds], dtype=bool)
+        if not deep.any():
+            return None
         k = np.full(len(preds), c.detection.k_sigma)
-        deep = self._looks_deeper(preds)
-        if deep.any():
-            half = np.array([[p.half_w, p.half_h] for p in preds])[deep]
-            k[deep] = gate_threshold(half, c.tracking.gate_false_alarm, c.detection.k_sigma)
+        half = np.array([[p.half_w, p.half_h] for p in preds])[deep]
+        k[deep] = gate_threshold(half, c.tracking.gate_false_alarm, c.detection.k_sigma)
         return k
 
-    def _gate_k(self, preds: list, shape: tuple[int, int]) -> np.ndarray | None:
-        """Detection threshold (σ) of every pixel: ``detection.k_sigma``, lower in the gates of
-        tracks that look deeper (confirmed, not in meeting mode;
-        :func:`wfviz.track_score.gate_threshold`)."""
-        c = self.config
-        deep = [p for p, d in zip(preds, self._looks_deeper(preds)) if d]
-        if not deep:
-            return None
-        half = np.array([[p.half_w, p.half_h] for p in deep])
-        ks = gate_threshold(half, c.tracking.gate_false_alarm, c.detection.k_sigma)
-        k = np.full(shape[:2], c.detection.k_sigma, dtype=np.float32)
+    def _threshold_map(self, preds: list, k: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Detection threshold (σ) of every pixel: the lowest of the gates covering it
+        (:meth:`_gate_thresholds`), ``detection.k_sigma`` outside them."""
+        out = np.full(shape[:2], self.config.detection.k_sigma, dtype=np.float32)
         h, w = shape[:2]
-        for p, kg in zip(deep, ks):
+        for p, kg in zip(preds, k.tolist()):
+            if kg >= self.config.detection.k_sigma:
+                continue
             x0, x1 = int(np.ceil(p.x - p.half_w)), int(np.floor(p.x + p.half_w)) + 1
             y0, y1 = int(np.ceil(p.y - p.half_h)), int(np.floor(p.y + p.half_h)) + 1
             if x1 > 0 and y1 > 0 and x0 < w and y0 < h:
-                sub = k[max(y0, 0):y1, max(x0, 0):x1]
+                sub = out[max(y0, 0):y1, max(x0, 0):x1]
                 np.minimum(sub, np.float32(kg), out=sub)
-        return k
+        return out
 
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
         """Detections that pass the confirmation tests in use one by one (new in the scene for
