@@ -44,6 +44,7 @@ DEFAULT_FPS = 20.0
 #: Files wfviz itself writes beside image frames (``wfviz synth``, ``demo --save-clip``):
 #: skipped without a warning.
 COMPANION_FILES = frozenset({"truth.csv", "meta.json"})
+FRAMES_SUBFOLDER = "frames"  # CLIP/frames/ beside CLIP/truth.csv: opened when CLIP itself holds no images
 SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
              f"({' '.join(IMAGE_SUFFIXES)}), a .npy stack or synth:SCENARIO")
 SYNTH_PREFIX = "synth:"
@@ -97,7 +98,12 @@ def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bo
     if not p.exists():
         raise ClipError(f"{p}: no such file or folder")
     if p.is_dir():
-        return ImageFolderClip(p, fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
+        folder, name = _frames_folder(p), None
+        if folder != p:
+            name = p.name or p.resolve().name
+            warnings.warn(f"{p}: no images in the folder itself; reading {folder}", ClipNote, stacklevel=2)
+        return ImageFolderClip(folder, fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero,
+                               name=name)
     suffix = p.suffix.lower()
     if suffix in VIDEO_SUFFIXES:
         return VideoClip(p, fps, skip_bad_frames=skip_bad_frames)
@@ -195,12 +201,25 @@ class _ClipBase:
         warnings.warn(f"{problem}; skipped (--skip-bad-frames)", ClipWarning, stacklevel=3)
 
 
+def _frames_folder(folder: Path) -> Path:
+    """``folder``, or its ``frames`` sub-folder when only that holds the images (the layout
+    ``CLIP/frames/``, ``CLIP/truth.csv``, ``CLIP/meta.json`` of scene generators)."""
+    sub = folder / FRAMES_SUBFOLDER
+    if not sub.is_dir() or any(_is_image(e) for e in folder.iterdir()):
+        return folder
+    return sub if any(_is_image(e) for e in sub.iterdir()) else folder
+
+
+def _is_image(p: Path) -> bool:
+    return not p.name.startswith(".") and p.suffix.lower() in IMAGE_SUFFIXES and p.is_file()
+
+
 class ImageFolderClip(_ClipBase):
     """A folder of PNG/TIFF/BMP images in file-name order; hidden files, ``truth.csv`` and
     ``meta.json`` are skipped, other entries too with a :class:`ClipWarning`."""
 
     def __init__(self, folder: Path, fps: float | None = None, *, skip_bad_frames: bool = False,
-                 nan_as_zero: bool = False) -> None:
+                 nan_as_zero: bool = False, name: str | None = None) -> None:
         visible = sorted((p for p in folder.iterdir() if not p.name.startswith(".")),
                          key=lambda p: p.name)
         files = [p for p in visible if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
@@ -225,7 +244,7 @@ class ImageFolderClip(_ClipBase):
                     raise
         assert first is not None
         self.dtype = first.dtype
-        name = folder.name or folder.resolve().name
+        name = name or folder.name or folder.resolve().name
         super().__init__(folder, name, _fps(folder, fps, None), len(files), first.shape[:2],
                          nan_as_zero)
 

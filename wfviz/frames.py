@@ -49,3 +49,52 @@ class Clip(Protocol):
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
         """Yield frames ``start <= index < stop`` in order, one at a time."""
         ...
+
+
+def read_ahead(frames: Iterator[Frame], depth: int = 2) -> Iterator[Frame]:
+    """``frames`` in order, decoded up to ``depth`` frames ahead in a background thread, so
+    that decoding (which releases the GIL) overlaps the caller's work on another core.
+
+    Exceptions of the source arrive where the frame would have. Closing the returned generator
+    (or leaving a ``for`` loop over it) stops the reader and closes ``frames`` in its thread.
+    """
+    import queue
+    import threading
+
+    items: queue.Queue = queue.Queue(maxsize=max(1, depth))
+    stop = threading.Event()
+    end = object()
+
+    def put(item: object) -> bool:
+        while not stop.is_set():
+            try:
+                items.put(item, timeout=0.1)
+                return True
+            except queue.Full:
+                continue
+        return False
+
+    def read() -> None:
+        try:
+            for frame in frames:
+                if not put(frame):
+                    return
+            put(end)
+        except BaseException as exc:  # handed to the consumer
+            put(exc)
+        finally:
+            getattr(frames, "close", lambda: None)()
+
+    reader = threading.Thread(target=read, name="wfviz-read-ahead", daemon=True)
+    reader.start()
+    try:
+        while True:
+            item = items.get()
+            if item is end:
+                return
+            if isinstance(item, BaseException):
+                raise item
+            yield item
+    finally:
+        stop.set()
+        reader.join()

@@ -137,6 +137,26 @@ def fill_missing(grid: np.ndarray, default: float) -> np.ndarray:
     return grid[tuple(idx)]
 
 
+def _tile_sums(mask: np.ndarray, tile: int, ny: int, nx: int) -> np.ndarray:
+    """Number of set pixels of ``mask`` in each ``tile`` x ``tile`` tile (``ny`` x ``nx``)."""
+    h, w = mask.shape
+    if (h, w) != (ny * tile, nx * tile):
+        mask = np.pad(mask, ((0, ny * tile - h), (0, nx * tile - w)))
+    return np.count_nonzero(mask.reshape(ny, tile, nx, tile), axis=(1, 3))
+
+
+def _quantile_bins(counts: np.ndarray, level: np.ndarray, first: int = 160) -> np.ndarray:
+    """Per row of the histograms ``counts``, the first bin whose cumulative count reaches
+    ``level`` (the number of bins below it). The cumulative sum is taken over the first
+    ``first`` bins, and over all of them only for rows that need it."""
+    cdf = np.cumsum(counts[:, :first], axis=1)
+    idx = (cdf < level[:, None]).sum(axis=1)
+    far = idx >= cdf.shape[1]
+    if far.any():
+        idx[far] = (np.cumsum(counts[far], axis=1) < level[far, None]).sum(axis=1)
+    return idx
+
+
 def upsample(grid: np.ndarray, shape: tuple[int, int], tile: int) -> np.ndarray:
     """Bilinear interpolation of a tile grid to every pixel (tile centres at their pixels)."""
     ny, nx = grid.shape
@@ -203,6 +223,7 @@ class NoiseModel:
 
 SHARE = 0.75  # TailCalibration: a tail as heavy as that of this share of the tiles holds everywhere
 TAIL_QUANTILE = 0.999  # TailCalibration: where the tail is measured
+TAIL_FLOOR = 2.0  # TailCalibration: significances below it are not binned (below 0.999's 3.09)
 
 
 class TailCalibration:
@@ -240,24 +261,33 @@ class TailCalibration:
     def update(self, z: np.ndarray, valid: np.ndarray, overall: bool = True) -> np.ndarray:
         """Add the significance map ``z`` (``valid`` pixels only); returns the factor of every
         pixel (float32, ``z``'s shape). ``overall``: at least the tail ratio that :data:`SHARE`
-        of the tiles reach, everywhere."""
+        of the tiles reach, everywhere.
+
+        Only pixels at or above :data:`TAIL_FLOOR` are binned; the rest of a tile's pixels are
+        counted in its lowest bin. The result is the same as binning all of them: a quantile
+        that falls below the floor gives a ratio below 1, which the factor's floor of 1 (and
+        the 3 x 3 median, and the :data:`SHARE` quantile, all order-preserving) replaces
+        whatever its value."""
         h, w = z.shape
         t, every = self.tile, self.stride
         nx, ny = -(-w // t), -(-h // t)
-        if self._tiles is None or self._tiles.shape != z[::every, ::every].shape:
-            rows, cols = np.indices(z[::every, ::every].shape) * every
-            self._tiles = ((rows // t) * nx + cols // t).astype(np.int64) * self.nbins
         zs = z[::every, ::every]
+        if self._tiles is None or self._tiles.shape != zs.shape:
+            rows, cols = np.indices(zs.shape) * every
+            self._tiles = ((rows // t) * nx + cols // t).astype(np.int64)
         keep = valid[::every, ::every] & np.isfinite(zs)
         with np.errstate(invalid="ignore"):  # NaN pixels are not kept
-            b = np.clip((zs - self.lo) * (1.0 / self.step), 0, self.nbins - 1).astype(np.int64)
+            high = np.flatnonzero(keep & (zs >= max(TAIL_FLOOR, self.lo)))
+        b = np.minimum((zs.ravel()[high] - self.lo) * (1.0 / self.step), self.nbins - 1).astype(np.int64)
+        tiles = self._tiles.ravel()
         if self.counts is None or self.counts.shape[0] != nx * ny:
             self.counts = np.zeros((nx * ny, self.nbins))
         self.counts *= self.memory
-        self.counts += np.bincount((self._tiles + b)[keep], minlength=nx * ny * self.nbins).reshape(-1, self.nbins)
+        hist = np.bincount(tiles[high] * self.nbins + b, minlength=nx * ny * self.nbins).reshape(-1, self.nbins)
+        hist[:, 0] += _tile_sums(keep, t // every, ny, nx).ravel() - hist.sum(axis=1)
+        self.counts += hist
         total = self.counts.sum(axis=1)
-        cdf = np.cumsum(self.counts, axis=1)
-        idx = (cdf < self.quantile * total[:, None]).sum(axis=1)
+        idx = _quantile_bins(self.counts, self.quantile * total)
         ratio = (self.lo + (idx + 1) * self.step) / self.gauss
         ratio = np.where(total >= self.min_samples, ratio, np.nan).reshape(ny, nx)
         self.grid = heavy_tail(ratio)  # 3 x 3 median, at least 1

@@ -13,7 +13,7 @@ from typing import Any
 
 from wfviz.clip import MIN_SIDE, check_frame_size
 from wfviz.evaluate import EvalResult, Points, evaluate_points, frame_errors
-from wfviz.frames import Clip, Frame
+from wfviz.frames import Clip, Frame, read_ahead
 from wfviz.outputs import TracksWriter, check_writable, commit, part_path
 from wfviz.trackers import Tracker
 from wfviz.trackers.base import FrameResult
@@ -118,7 +118,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
         first = last = None
         t_start = time.perf_counter()
         tracker_s = 0.0
-        stream = clip.frames(start, stop)
+        stream = read_ahead(clip.frames(start, stop))
         try:
             for frame in stream:
                 if signals.signum is not None:  # arrived while reading: start no new frame
