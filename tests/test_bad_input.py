@@ -253,7 +253,9 @@ def test_malformed_truth_csv_names_line_and_column(tmp_path: Path) -> None:
     ("[horizon]\nstep = 2.5\n", "horizon.step: expected an integer, got 2.5"),
     ("[horizon]\nmin_coverage = 1.5\n", "horizon.min_coverage: 1.5 is out of range [0.0, 1.0]"),
     ("[horizon]\nstep = 1" + "0" * 30 + "\n", "horizon.step: 1" + "0" * 30 + " is out of range [1, 10]"),
-    ("[kalman]\nq = 1" + "0" * 400 + "\n", "kalman.q: 10000000... (401 digits) is out of range [0.0, inf]"),
+    ("[kalman]\nq = 1" + "0" * 400 + "\n", "kalman.q: 10000000... (401 digits) is out of range [0.0, 1e9]"),
+    ("[kalman]\nq = 1e300\n", "kalman.q: 1e+300 is out of range [0.0, 1e9]"),
+    ("[circle]\nradius = 1e300\n", "circle.radius: 1e+300 is out of range [1.0, 1e9]"),
     ("[kalman\n", "not valid TOML"),
 ])
 def test_bad_config_names_the_key(tmp_path: Path, text: str, message: str) -> None:

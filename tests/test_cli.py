@@ -51,7 +51,7 @@ def demo_run(tmp_path_factory):
 def test_demo_writes_outputs_and_summary(demo_run):
     cwd, rrd, stdout = demo_run
     assert rrd.exists() and (cwd / "recordings" / "demo-gewc.csv").exists()
-    assert not list((cwd / "recordings").glob("*.part"))
+    assert not list((cwd / "recordings").glob("*.part")) and not list((cwd / "recordings").glob(".*wfviz-part"))
     assert f"{N_FRAMES} frames" in stdout and "rerun recordings/demo-gewc.rrd" in stdout
 
 
@@ -196,7 +196,7 @@ def test_record_with_truth_logs_eval_entities(tmp_path):
     bad.write_text("frame,target_id,x,y\n0,1,abc,3\n")
     proc = wfviz("record", str(folder), "-o", str(tmp_path / "s.rrd"), "--truth", str(bad), cwd=tmp_path)
     assert proc.returncode == 2 and "bad.csv:2" in proc.stderr and "'x'" in proc.stderr
-    assert not (tmp_path / "s.rrd").exists() and not (tmp_path / "s.rrd.part").exists()
+    assert not (tmp_path / "s.rrd").exists() and not list(tmp_path.glob(".s.rrd.*wfviz-part"))
 
 
 def test_bench_prints_per_stage_table(tmp_path):

@@ -117,7 +117,7 @@ frame,track_id,x,y
 2,5,12,10
 2,7,50,30
 """)
-    r = evaluate(tracks, truth)
+    r = evaluate(tracks, truth, all_rows=True)  # no 'confirmed' column: every row counts
     assert r.truth_points == 4 and r.matches == 4 and r.misses == 0
     assert r.ignored == 1  # track 6 on hidden target 2 in frame 1
     assert r.false_positives == 1  # track 7 in frame 2 is 22 px from the hidden target
@@ -184,6 +184,9 @@ def test_empty_files_are_zero_rows(tmp_path):
     truth = write(tmp_path / "truth.csv", "frame,target_id,x,y\n0,1,10,10\n")
     r = evaluate(empty, truth)
     assert (r.frames, r.misses, r.pd) == (1, 1, 0.0)
-    r = evaluate(empty, write(tmp_path / "none.csv", "frame,target_id,x,y\n"))
+    assert json.dumps(r.to_dict(), allow_nan=False)
+    with pytest.raises(TruthError, match="none.csv: no truth rows"):  # nothing to score against
+        evaluate(empty, write(tmp_path / "none.csv", "frame,target_id,x,y\n"))
+    r = evaluate_points({}, {})  # in memory (a run over frames without truth): zeros, no error
     assert (r.frames, r.truth_points, r.per_target) == (0, 0, ())
     assert json.dumps(r.to_dict(), allow_nan=False)

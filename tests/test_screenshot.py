@@ -151,3 +151,52 @@ def test_demo_recording_renders_with_its_views(tmp_path):
     # the fisheye frame: a bright disc with dark corners, many grey levels (not the welcome screen)
     assert camera.std() > 20 and len(np.unique(camera.astype(int))) > 60
     assert residual.std() > 3 and plots.std() > 10
+
+
+def _children(pid: int) -> list[int]:
+    """Processes whose parent is ``pid`` (Linux /proc)."""
+    out = []
+    for entry in Path("/proc").iterdir():
+        if entry.name.isdigit():
+            try:
+                fields = (entry / "stat").read_text().rsplit(")", 1)[1].split()
+            except OSError:
+                continue
+            if int(fields[1]) == pid:
+                out.append(int(entry.name))
+    return out
+
+
+def _running(pid: int) -> bool:
+    try:
+        state = Path(f"/proc/{pid}/stat").read_text().rsplit(")", 1)[1].split()[0]
+    except OSError:
+        return False
+    return state != "Z"
+
+
+@needs_vulkan
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_sigterm_ends_the_headless_viewer_too(tmp_path: Path) -> None:
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rrd = _make_rrd(tmp_path / "x.rrd")
+    proc = subprocess.Popen([sys.executable, "-m", "wfviz", "screenshot", str(rrd), "-o", str(tmp_path / "s.png")],
+                            stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True)
+    deadline = time.monotonic() + 60
+    viewers: list[int] = []
+    while not viewers:
+        assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
+        viewers = _children(proc.pid)
+        time.sleep(0.05)
+    proc.send_signal(signal.SIGTERM)
+    _, stderr = proc.communicate(timeout=60)
+    assert proc.returncode == 128 + signal.SIGTERM and "terminated" in stderr, stderr
+    end = time.monotonic() + 10
+    while any(_running(v) for v in viewers) and time.monotonic() < end:
+        time.sleep(0.1)
+    assert not any(_running(v) for v in viewers)
+    assert not (tmp_path / "s.png").exists() and not list(tmp_path.glob(".s.png.*"))

@@ -76,7 +76,11 @@ def test_signal_leaves_a_complete_recording_of_the_frames_done(tmp_path: Path, s
     proc = subprocess.Popen([sys.executable, "-c", SLOW_CLI, "record", str(clip), "-o", str(out / "r.rrd")],
                             stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True, cwd=tmp_path)
     deadline = time.monotonic() + 60
-    while not (out / "r.rrd.part").exists() or (out / "r.rrd.part").stat().st_size == 0:
+    def temp() -> Path | None:
+        found = list(out.glob(".r.rrd.*.wfviz-part")) if out.exists() else []
+        return found[0] if found else None
+
+    while temp() is None or temp().stat().st_size == 0:
         assert proc.poll() is None and time.monotonic() < deadline, proc.communicate()
         time.sleep(0.02)
     time.sleep(0.4)  # some frames in (at 15+ ms each), far from the end
@@ -86,7 +90,7 @@ def test_signal_leaves_a_complete_recording_of_the_frames_done(tmp_path: Path, s
     name = signal.Signals(sig).name
     n = int(re.search(rf"interrupted by {name}: (\d+) frames", stdout).group(1))
     assert 0 < n < N_FRAMES and f"recording: {out / 'r.rrd'} ({n} frames, 0-{n - 1})" in stdout
-    assert sorted(p.name for p in out.iterdir()) == ["r.csv", "r.rrd"]  # no .part left
+    assert sorted(p.name for p in out.iterdir()) == ["r.csv", "r.rrd"]  # no temporary file left
     verify(out / "r.rrd")
     frames, logs = rrd_frames(out / "r.rrd")
     assert frames["/camera/image"] == set(range(n)) == frames["/timing/total"]
@@ -118,6 +122,6 @@ def test_handlers_stop_between_frames_and_are_restored(tmp_path: Path) -> None:
     assert (summary.frames, summary.signal, summary.interrupted) == (6, signal.SIGTERM, True)
     assert (summary.first, summary.last) == (0, 5)
     assert {s: signal.getsignal(s) for s in before} == before
-    assert not (tmp_path / "t.csv.part").exists()
+    assert not list(tmp_path.glob(".t.csv.*"))
     with open(tmp_path / "t.csv", newline="") as fh:
         assert max(int(r["frame"]) for r in csv.DictReader(fh)) == 5

@@ -1,3 +1,3 @@
-from wfviz.cli import main
+from wfviz.entry import main
 
 main()

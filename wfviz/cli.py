@@ -11,17 +11,44 @@ from pathlib import Path
 from typing import Annotated, Optional
 
 import typer
+from typer.core import TyperGroup
+from typer.exceptions import TyperException
 from rich.console import Console
+from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from wfviz.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
 from wfviz.config import ConfigError, config_to_toml
 from wfviz.frames import Clip
-from wfviz.outputs import OutputError, check_writable
+from wfviz.outputs import OutputError, check_not_inputs, check_writable, remove_stale, temp_path
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
-app = typer.Typer(add_completion=False, no_args_is_help=True,
+class _OneLineErrors(TyperGroup):
+    """Usage errors (a bad option value, an unknown option) as one line naming the option and
+    what it accepts, exit 2, instead of the usage box."""
+
+    def main(self, *args, standalone_mode: bool = True, **kwargs):  # noqa: ANN002, ANN003, ANN201
+        if not standalone_mode:
+            return super().main(*args, standalone_mode=False, **kwargs)
+        try:
+            code = super().main(*args, standalone_mode=False, **kwargs)
+        except TyperException as exc:
+            if type(exc).__name__ == "NoArgsIsHelpError" or exc.exit_code == 0:
+                from typer import rich_utils
+                rich_utils.rich_format_error(exc)  # type: ignore[arg-type]
+                sys.exit(exc.exit_code)
+            ctx = getattr(exc, "ctx", None)
+            where = f" (see {ctx.command_path} --help)" if ctx is not None else ""
+            err.print(f"wfviz: error: {exc.format_message()}{where}", highlight=False, markup=False, soft_wrap=True)
+            sys.exit(EXIT_BAD_INPUT)
+        except typer.Abort:
+            err.print("wfviz: error: aborted", highlight=False, markup=False)
+            sys.exit(1)
+        sys.exit(code if isinstance(code, int) else 0)
+
+
+app = typer.Typer(add_completion=False, no_args_is_help=True, cls=_OneLineErrors,
                   help="Wide-field IR small-target tracking with every stage recorded to Rerun.")
 err = Console(stderr=True, soft_wrap=True)
 out = Console(soft_wrap=True)
@@ -44,7 +71,7 @@ NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pix
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
-    err.print(f"[bold red]wfviz: error:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]wfviz: error:[/] {escape(str(message))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -56,20 +83,34 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
         kind = "warning"
     else:
         kind = f"warning: {category.__name__}"
-    err.print(f"[yellow]wfviz: {kind}:[/] {message}", highlight=False, soft_wrap=True)
+    err.print(f"[yellow]wfviz: {kind}:[/] {escape(str(message))}", highlight=False, soft_wrap=True)
+
+
+class Terminated(KeyboardInterrupt):
+    """SIGTERM arrived (raised so that every command's clean-up runs, as on Ctrl-C)."""
+
+
+def _terminate(signum: int, _frame: object) -> None:
+    raise Terminated()
 
 
 def _guarded(fn):  # noqa: ANN001, ANN202
-    """Turn known bad-input errors into one-line messages (tracebacks only with --debug) and
-    warnings into one-line notes."""
+    """Turn known bad-input errors into one-line messages (tracebacks only with --debug),
+    warnings into one-line notes, and SIGTERM into the clean-up path of Ctrl-C (temporary files
+    removed, child processes ended)."""
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
         with warnings.catch_warnings():
             warnings.simplefilter("always", ClipWarning)
             warnings.showwarning = _show_warning
+            old_term = signal.signal(signal.SIGTERM, _terminate)
             try:
                 return fn(*args, **kwargs)
+            except Terminated:
+                if STATE["debug"]:
+                    raise
+                _fail("terminated", 128 + signal.SIGTERM)
             except BadFrameError as exc:
                 if STATE["debug"]:
                     raise
@@ -87,6 +128,8 @@ def _guarded(fn):  # noqa: ANN001, ANN202
                     raise
                 where = f"{exc.filename}: " if exc.filename else ""
                 _fail(f"{where}{exc.strerror or exc}", 1)
+            finally:
+                signal.signal(signal.SIGTERM, old_term)
     return wrapper
 
 
@@ -94,22 +137,37 @@ def _tracker(name: str, config: Path | None):  # noqa: ANN202
     return load_tracker(name, config)
 
 
-def _check_outputs(clip: Clip, *outputs: Path | None) -> None:
-    """Outputs must differ from each other and from the input (they replace what they name)."""
-    given = [p for p in outputs if p is not None]
-    paths = [p.resolve() for p in given]
-    source = getattr(clip, "path", None)
-    for i, p in enumerate(paths):
-        if source is not None and p == Path(source).resolve():
-            raise ValueError(f"{given[i]}: output would overwrite the input clip")
-        if p in paths[:i]:
-            raise ValueError(f"{given[i]}: the recording and the tracks CSV need different names")
+def _clip_inputs(clip: Clip | None) -> tuple[list[tuple[Path, str]], list[Path]]:
+    """((file, what it is), image folders) a clip reads."""
+    if clip is None:
+        return [], []
+    path = getattr(clip, "path", None)
+    files = [(Path(f), f"frame {i} of the input clip") for i, f in enumerate(getattr(clip, "files", None) or [])]
+    if files:
+        return files, [Path(path)] if path is not None else []
+    return ([(Path(path), "the input clip")] if path is not None else []), []
+
+
+def _inputs(truth: Path | None, config: Path | None) -> tuple[tuple[Path | None, str], ...]:
+    return (truth, "the truth file"), (config, "the config file")
+
+
+def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
+                   inputs: tuple[tuple[Path | None, str], ...] = ()) -> None:
+    """Refuse outputs that would replace an input (clip frames, truth, config, recording) or
+    each other; remove temporary outputs that killed wfviz runs left beside them."""
+    files, folders = _clip_inputs(clip)
+    check_not_inputs(outputs, [*files, *((p, what) for p, what in inputs if p is not None)], folders)
+    for folder in dict.fromkeys(Path(o).parent for o in outputs if o is not None):
+        for stale in remove_stale(folder):
+            err.print(f"wfviz: note: removed {stale} (left by a wfviz run that was killed)",
+                      highlight=False, markup=False, soft_wrap=True)
 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
-             jpeg_quality: int | None = None) -> RunSummary:
-    _check_outputs(clip, recording, tracks)
+             jpeg_quality: int | None = None, inputs: tuple[tuple[Path | None, str], ...] = ()) -> RunSummary:
+    _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
     total = clip.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
@@ -121,7 +179,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
-        task = progress.add_task(clip.name, total=total, fps=0.0)
+        task = progress.add_task(escape(clip.name), total=total, fps=0.0)
         count = [0]
         import time
         t0 = time.perf_counter()
@@ -155,12 +213,12 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) ->
             else " (0 frames)")
     if summary.skipped:
         shown = ", ".join(map(str, summary.skipped[:10])) + (", ..." if len(summary.skipped) > 10 else "")
-        out.print(f"  skipped:   {len(summary.skipped)} unreadable frames ({shown})", highlight=False)
+        out.print(f"  skipped:   {len(summary.skipped)} unreadable frames ({shown})", highlight=False, markup=False)
     if tracks is not None:
-        out.print(f"  tracks:    {tracks}{held if signum else ''}", highlight=False)
+        out.print(f"  tracks:    {tracks}{held if signum else ''}", highlight=False, markup=False)
     if recording is not None:
-        out.print(f"  recording: {recording}{held if signum else ''}", highlight=False)
-        out.print(f"  open it:   rerun {recording}", highlight=False)
+        out.print(f"  recording: {recording}{held if signum else ''}", highlight=False, markup=False)
+        out.print(f"  open it:   rerun {recording}", highlight=False, markup=False)
     if summary.scores is not None:
         from wfviz.evaluate import format_table
         out.print(format_table(summary.scores), highlight=False, markup=False)
@@ -202,7 +260,7 @@ def record(
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
-                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality)
+                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, inputs=_inputs(truth, config))
     _report(summary, tracks, output)
 
 
@@ -226,7 +284,7 @@ def track(
     truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
-                       image_every=0, source=str(clip), truth=truth_points, gate=gate)
+                       image_every=0, source=str(clip), truth=truth_points, gate=gate, inputs=_inputs(truth, config))
     _report(summary, tracks, None)
 
 
@@ -248,18 +306,24 @@ def demo(
 
     trk = _tracker("gewc", config)
     clip = demo_clip(seed=seed, n_frames=frames)
-    if save_clip is not None:
-        clip.save(save_clip)
-        out.print(f"  clip:      {save_clip}", highlight=False)
     tracks = output.with_suffix(".csv")
     truth = output.with_name(output.stem + "-truth.csv")
     check_writable(truth)
-    clip.write_truth_csv(truth)
+    _guard_outputs(output, tracks, truth, inputs=((config, "the config file"),))
+    if save_clip is not None:
+        clip.save(save_clip)
+        out.print(f"  clip:      {save_clip}", highlight=False, markup=False)
+    temp = temp_path(truth)
+    try:
+        clip.write_truth_csv(temp)
+        os.replace(temp, truth)
+    finally:
+        temp.unlink(missing_ok=True)
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
                        source=f"built-in demo (seed {seed}, {frames} frames)", truth=read_truth(truth),
                        jpeg_quality=jpeg_quality)
-    out.print(f"  truth:     {truth}", highlight=False)
+    out.print(f"  truth:     {truth}", highlight=False, markup=False)
     _report(summary, tracks, output)
 
 
@@ -270,7 +334,7 @@ def synth(
     out_dir: Annotated[Optional[Path], typer.Argument(help="Folder to write (16-bit PNGs, truth.csv, meta.json).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (noise, textures).")] = 0,
     frames: Annotated[Optional[int], typer.Option("--frames", min=1, help="Number of frames (default: the scenario's).")] = None,
-    snr: Annotated[Optional[float], typer.Option("--snr", min=0.1, help="Peak SNR of every target.")] = None,
+    snr: Annotated[Optional[float], typer.Option("--snr", min=0.1, max=1e6, help="Peak SNR of every target.")] = None,
     avi: Annotated[bool, typer.Option("--avi", help="Also write an 8-bit .avi.")] = False,
     list_: Annotated[bool, typer.Option("--list", help="Describe every scenario and exit.")] = False,
 ) -> None:
@@ -284,13 +348,15 @@ def synth(
         return
     if out_dir is None:
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: is a file, expected a folder to write the scenario into")
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
-        task = progress.add_task(f"synth {scenario}", total=clip.n_frames)
+        task = progress.add_task(escape(f"synth {scenario}"), total=clip.n_frames)
         path = write_scenario(clip, out_dir, avi=avi, progress=lambda n: progress.update(task, completed=n))
-    out.print(f"wrote {clip.n_frames} frames of '{scenario}' (seed {seed}) to {path}", highlight=False)
-    out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False)
+    out.print(f"wrote {clip.n_frames} frames of '{scenario}' (seed {seed}) to {path}", highlight=False, markup=False)
+    out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False, markup=False)
 
 
 @app.command("eval")
@@ -300,6 +366,7 @@ def eval_(
     truth: Annotated[Path, typer.Argument(help="Truth CSV (frame,target_id,x,y).")],
     gate: Annotated[float, typer.Option("--gate", min=0.01, help="Match distance in pixels.")] = 3.0,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores as JSON.")] = None,
+    all_rows: Annotated[bool, typer.Option("--all-rows", help="Score every row as a confirmed track (for CSVs without a 'confirmed' column, or to include tentative tracks).")] = False,
 ) -> None:
     """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f."""
     import json
@@ -309,14 +376,15 @@ def eval_(
     for p in (tracks, truth):
         if not p.is_file():
             raise ValueError(f"{p}: no such file")
-    result = evaluate(tracks, truth, gate=gate)
+    if json_out is not None:
+        check_writable(json_out)
+        _guard_outputs(json_out, inputs=((tracks, "the tracks CSV"), (truth, "the truth file")))
+    result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
     out.print(format_table(result), highlight=False, markup=False)
     if json_out is not None:
-        from wfviz.outputs import check_writable, commit, part_path
-        check_writable(json_out)
-        part_path(json_out).write_text(json.dumps(result.to_dict(), indent=2) + "\n", encoding="utf-8")
-        commit(json_out)
-        out.print(f"  json: {json_out}", highlight=False)
+        from wfviz.outputs import write_atomically
+        write_atomically(json_out, json.dumps(result.to_dict(), indent=2) + "\n")
+        out.print(f"  json: {json_out}", highlight=False, markup=False)
 
 
 @app.command()
@@ -333,11 +401,14 @@ def screenshot(
 
     if not recording.is_file():
         raise ValueError(f"{recording}: no such recording")
+    if output.is_dir():
+        raise OutputError(f"{output}: is a folder, expected a PNG file name")
+    _guard_outputs(output, inputs=((recording, "the recording"),))
     try:
         render_screenshot(recording, output, frame=frame, width=width, height=height)
     except ScreenshotError as exc:
         raise ValueError(f"{recording}: {exc}") from None
-    out.print(f"screenshot: {output}", highlight=False)
+    out.print(f"screenshot: {output}", highlight=False, markup=False)
 
 
 @app.command("bench")
@@ -349,7 +420,7 @@ def bench_(
     start: StartOpt = 0,
     stop: StopOpt = None,
     fps: FpsOpt = None,
-    threads: Annotated[int, typer.Option("--threads", min=0, help="OpenCV threads (1 = one core, 0 = OpenCV's default).")] = 1,
+    threads: Annotated[int, typer.Option("--threads", min=0, max=os.cpu_count() or 1, help="OpenCV threads (1 = one core, 0 = OpenCV's default; at most this machine's cores).")] = 1,
 ) -> None:
     """Time each stage of a tracker on a clip (decoding separately), nothing written."""
     import cv2

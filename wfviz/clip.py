@@ -234,6 +234,7 @@ class ImageFolderClip(_ClipBase):
         self.files = files
         self.skip_bad_frames = skip_bad_frames
         self._colour_noted = False
+        self._pages_noted = False
         first = None
         for index, path in enumerate(files):  # the first decodable image sets size and type
             try:
@@ -255,6 +256,13 @@ class ImageFolderClip(_ClipBase):
             self._colour_noted = True
             warnings.warn(f"{path}: colour image converted to luma (0.299 R + 0.587 G + 0.114 B); "
                           f"later colour images too", ClipNote, stacklevel=3)
+        if not self._pages_noted and path.suffix.lower() in (".tif", ".tiff"):
+            pages = _page_count(path)
+            if pages > 1:
+                self._pages_noted = True
+                warnings.warn(f"{path}: multi-page TIFF ({pages} pages): only the first page is read, "
+                              f"as frame {index} (one image per frame is expected); later ones too",
+                              ClipWarning, stacklevel=3)
         return image
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
@@ -413,6 +421,15 @@ def _frame_dtype(dtype: np.dtype, path: Path) -> np.dtype:
     if dtype.kind in "iuf" and dtype.fields is None:
         return np.dtype(np.float32)
     raise ClipError(f"{path}: unsupported pixel type {dtype}")
+
+
+def _page_count(path: Path) -> int:
+    """Pages of a (TIFF) image file (1 if OpenCV cannot tell)."""
+    try:
+        with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):
+            return int(cv2.imcount(str(path)))
+    except (cv2.error, AttributeError):
+        return 1
 
 
 def _read_image(path: Path, index: int) -> tuple[np.ndarray, bool]:

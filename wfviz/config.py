@@ -475,6 +475,9 @@ def _closest(name: str, options: list[str]) -> str:
     return f" (did you mean '{match[0]}'?)" if match else f" (known: {', '.join(options)})"
 
 
+SANE_LIMIT = 1e9  # bound of every parameter whose range is open: larger values overflow stages
+
+
 def _finite(value: int | float) -> bool:
     """Whether ``value`` is a finite float (huge integers overflow: not finite)."""
     try:
@@ -512,7 +515,9 @@ def _coerce(key: str, value: Any, hint: Any, meta: dict[str, Any]) -> Any:
     if isinstance(value, bool) or not isinstance(value, (int, float)):
         raise ConfigError(f"{key}: expected {'an integer' if want_int else 'a number'}, got {value!r}")
     lo, hi = meta.get("range", (None, None))
-    accepted = f"[{lo if lo is not None else '-inf'}, {hi if hi is not None else 'inf'}]"
+    accepted = f"[{lo if lo is not None else '-1e9'}, {hi if hi is not None else '1e9'}]"
+    lo = -SANE_LIMIT if lo is None else lo  # open ends: no parameter is sane beyond 1e9
+    hi = SANE_LIMIT if hi is None else hi
     if not _finite(value):
         if isinstance(value, int):  # too large for a float
             raise ConfigError(f"{key}: {str(value)[:8]}... ({len(str(value))} digits) is out of "
@@ -560,7 +565,7 @@ def load_config(path: str | Path | None, cls: type = GEWCConfig) -> Any:
         return cls()
     path = Path(path)
     try:
-        data = tomllib.loads(path.read_text(encoding="utf-8"))
+        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as some editors save
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such config file") from None
     except IsADirectoryError:

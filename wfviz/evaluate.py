@@ -132,21 +132,27 @@ def _parse(text: str | None, where: str, col: str, kind: str) -> Any:
     raise TruthError(f"{where}: column {col!r}: {s!r} is not {what}" if s else f"{where}: column {col!r}: empty")
 
 
-def _read(path: Path | str, id_column: str, flag: str | None) -> tuple[Points, Points]:
-    """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0."""
+def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = False) -> tuple[Points, Points]:
+    """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0.
+    ``need_flag``: a missing ``flag`` column is an error. A UTF-8 byte-order mark is accepted."""
     name, shown, hidden, seen = Path(path).name, defaultdict(list), defaultdict(list), set()
     try:
-        with open(path, newline="", encoding="utf-8") as fh:
+        with open(path, newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
             header = reader.fieldnames or []
             missing = [c for c in ("frame", id_column, "x", "y") if c not in header]
             if header and missing:
                 raise TruthError(f"{name}:1: missing column {missing[0]!r} (header: {','.join(header)})")
+            if header and need_flag and flag not in header:
+                raise TruthError(f"{name}:1: no {flag!r} column, so tentative tracks cannot be told from "
+                                 f"confirmed ones (--all-rows scores every row as confirmed)")
             use_flag = flag is not None and flag in header
             for row in reader:
                 where = f"{name}:{reader.line_num}"
                 f, i, x, y = (_parse(row.get(c), where, c, k) for c, k in
                               (("frame", "int"), (id_column, "int"), ("x", "float"), ("y", "float")))
+                if f < 0:
+                    raise TruthError(f"{where}: column 'frame': {f} is negative (frames are 0-based)")
                 if (f, i) in seen:
                     raise TruthError(f"{where}: column {id_column!r}: {i} repeated in frame {f}")
                 seen.add((f, i))
@@ -226,7 +232,9 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> Eva
     span = [f for f, v in (*truth.items(), *hidden.items()) if v]
     frames = range(min(span), max(span) + 1) if span else range(0)
     ignored = 0
-    for f in frames:
+    # only frames with points: the others add no event, so the cost follows the rows, not the span
+    busy = sorted({f for f in (*truth, *hidden, *tracks) if f in frames})
+    for f in busy:
         gt, tr = truth.get(f, []), tracks.get(f, [])
         kept = _drop_hidden(tr, gt, hidden.get(f, []), gate)
         ignored += len(tr) - len(kept)
@@ -284,10 +292,16 @@ def evaluate_points(tracks: Points, truth: Points, gate: float = 3.0,
     return _evaluate(tracks, truth, hidden or {}, gate)
 
 
-def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0) -> EvalResult:
-    """Score a tracks CSV (``confirmed == 1`` rows) against a truth CSV (``visible == 1`` rows)."""
+def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows: bool = False) -> EvalResult:
+    """Score a tracks CSV (``confirmed == 1`` rows; every row with ``all_rows``, and a file
+    without a ``confirmed`` column only then) against a truth CSV (``visible == 1`` rows).
+    A truth file without any row is an error."""
     shown, hidden = read_truth(truth)
-    return _evaluate(_read(tracks, "track_id", "confirmed")[0], shown, hidden, gate)
+    if not shown and not hidden:
+        raise TruthError(f"{Path(truth).name}: no truth rows (only a header, or empty)")
+    track_pts = (_read(tracks, "track_id", None) if all_rows
+                 else _read(tracks, "track_id", "confirmed", need_flag=True))[0]
+    return _evaluate(track_pts, shown, hidden, gate)
 
 
 def format_table(result: EvalResult) -> str:

@@ -1,23 +1,128 @@
-"""Output files written atomically: to ``NAME.part``, renamed only when complete."""
+"""Output files written atomically: to a unique temporary file beside the target, renamed
+into place only when complete, and never over an input of the command."""
 
 from __future__ import annotations
 
 import os
+import re
+import shutil
+import tempfile
+from collections.abc import Iterable
 from pathlib import Path
 from typing import TextIO
 
 from wfviz.tracking import TrackState
 
 TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]
+TEMP_SUFFIX = ".wfviz-part"
+#: ``.NAME.PID.RANDOM.wfviz-part``: a temporary output of process PID (see :func:`temp_path`)
+_TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[^.]+" + re.escape(TEMP_SUFFIX) + "$")
 
 
 class OutputError(OSError):
     """An output path cannot be written (one-line message naming it)."""
 
 
-def part_path(path: Path) -> Path:
-    """The temporary name a file is written under until complete."""
-    return path.with_name(path.name + ".part")
+def temp_path(path: Path) -> Path:
+    """A new empty file beside ``path``, unique to this call (``.NAME.PID.RANDOM.wfviz-part``):
+    two runs writing the same output never share a temporary file, and a run killed before
+    renaming leaves a name :func:`remove_stale` recognises."""
+    fd, name = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=path.parent)
+    os.close(fd)
+    return Path(name)
+
+
+def temp_dir(path: Path) -> Path:
+    """A new empty folder beside ``path``, named as :func:`temp_path` names files."""
+    return Path(tempfile.mkdtemp(prefix=f".{path.name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=path.parent))
+
+
+def _alive(pid: int) -> bool:
+    if pid == os.getpid():
+        return True
+    try:
+        os.kill(pid, 0)
+    except ProcessLookupError:
+        return False
+    except PermissionError:  # someone else's process
+        return True
+    return True
+
+
+def remove_stale(folder: Path) -> list[Path]:
+    """Remove the temporary outputs in ``folder`` left by wfviz processes that no longer run
+    (killed before they could clean up); returns what was removed."""
+    removed = []
+    try:
+        entries = list(folder.iterdir())
+    except OSError:
+        return removed
+    for entry in entries:
+        m = _TEMP_NAME.match(entry.name)
+        if m is None or _alive(int(m["pid"])):
+            continue
+        try:
+            if entry.is_dir() and not entry.is_symlink():
+                shutil.rmtree(entry)
+            else:
+                entry.unlink()
+            removed.append(entry)
+        except OSError:
+            pass
+    return removed
+
+
+def same_file(a: Path, b: Path) -> bool:
+    """``a`` and ``b`` name the same file (symlinks and hard links resolved)."""
+    try:
+        return a.resolve() == b.resolve() or (a.exists() and b.exists() and os.path.samefile(a, b))
+    except OSError:
+        return False
+
+
+def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path, str]],
+                     input_folders: Iterable[Path] = ()) -> None:
+    """Refuse (``OutputError``) an output that would replace an input of the command (``inputs``:
+    (path, what it is), e.g. a clip frame, the truth, config or recording file; symlinks and hard
+    links resolved), or any file already in an input image folder, or an image file there (it
+    would join the clip), or that names the same file as another output."""
+    ins = [(Path(p), what) for p, what in inputs]
+    folders = [Path(f).resolve() for f in input_folders]
+    seen: list[Path] = []
+    for out in outputs:
+        if out is None:
+            continue
+        out = Path(out)
+        for p, what in ins:
+            if same_file(out, p):
+                raise OutputError(f"{out}: output would overwrite {what}")
+        target = out.resolve()
+        if target.parent in folders and (target.exists() or target.suffix.lower() in _IMAGE_SUFFIXES):
+            raise OutputError(f"{out}: output would overwrite or join the frames of the input folder "
+                              f"{target.parent}")
+        for other in seen:
+            if same_file(out, other) or out.resolve() == other.resolve():
+                raise OutputError(f"{out}: two outputs of this command have the same name")
+        seen.append(out)
+
+
+_IMAGE_SUFFIXES = (".bmp", ".png", ".tif", ".tiff")
+
+
+def write_atomically(path: Path, data: bytes | str) -> None:
+    """Write ``data`` to ``path`` through a unique temporary file (removed on any error)."""
+    tmp = temp_path(path)
+    try:
+        if isinstance(data, str):
+            tmp.write_text(data, encoding="utf-8")
+        else:
+            tmp.write_bytes(data)
+        os.replace(tmp, path)
+    except BaseException as exc:
+        tmp.unlink(missing_ok=True)
+        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        raise
 
 
 def check_writable(path: Path) -> None:
@@ -40,31 +145,41 @@ def check_writable(path: Path) -> None:
         raise OutputError(f"{parent}: output folder is not writable ({exc.strerror})") from None
 
 
-def commit(path: Path) -> None:
-    """Rename ``path.part`` to ``path`` (replacing an older file)."""
-    os.replace(part_path(path), path)
-
-
 class TracksWriter:
-    """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track."""
+    """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track,
+    written to a unique temporary file and renamed to ``path`` by :meth:`close`."""
 
     def __init__(self, path: Path) -> None:
         self.path = path
-        self._fh: TextIO = open(part_path(path), "w", newline="", encoding="utf-8")
-        self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
+        self.temp = temp_path(path)
+        try:
+            self._fh: TextIO = open(self.temp, "w", newline="", encoding="utf-8")
+            self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
+        except OSError as exc:
+            self.temp.unlink(missing_ok=True)
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
     def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
         """Append the rows of one frame."""
-        self._fh.write("".join(
-            f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
-            for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
+        try:
+            self._fh.write("".join(
+                f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
+                for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
 
     def close(self) -> None:
         """Flush, close and rename into place."""
-        self._fh.close()
-        commit(self.path)
+        try:
+            self._fh.close()
+            os.replace(self.temp, self.path)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
 
     def abort(self) -> None:
         """Close and remove the partial file."""
-        self._fh.close()
-        part_path(self.path).unlink(missing_ok=True)
+        try:
+            self._fh.close()
+        except OSError:  # e.g. the disk is full: the buffered rows cannot be flushed
+            pass
+        self.temp.unlink(missing_ok=True)

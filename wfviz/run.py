@@ -14,7 +14,7 @@ from typing import Any
 from wfviz.clip import MIN_SIDE, check_frame_size
 from wfviz.evaluate import EvalResult, Points, evaluate_points, frame_errors
 from wfviz.frames import Clip, Frame, read_ahead
-from wfviz.outputs import TracksWriter, check_writable, commit, part_path
+from wfviz.outputs import OutputError, TracksWriter, check_writable, temp_path
 from wfviz.trackers import Tracker
 from wfviz.trackers.base import FrameResult
 
@@ -85,7 +85,8 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
         on_frame: Callable[[Frame, FrameResult], None] | None = None) -> RunSummary:
     """Track ``clip`` frames ``start <= index < stop``; write outputs atomically.
 
-    Outputs are written under ``NAME.part`` and renamed when the run ends. SIGINT and SIGTERM
+    Outputs are written to unique temporary files beside them
+    (:func:`wfviz.outputs.temp_path`) and renamed when the run ends. SIGINT and SIGTERM
     (and a KeyboardInterrupt raised elsewhere) stop the run after the current frame: the
     frames done are flushed, the recording is closed and renamed, ``interrupted`` and
     ``signal`` are set. On any error, or when no frame was processed, the partial files are
@@ -101,14 +102,17 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
                 check_writable(p)
         writer = TracksWriter(tracks_csv) if tracks_csv is not None else None
         recorder = None
+        rec_temp = None
         try:
             if recording is not None:
                 from wfviz.record import open_recorder  # rerun is imported only when recording
-                recorder = open_recorder(tracker.name, part_path(recording), **(recorder_options or {}))
+                rec_temp = temp_path(recording)
+                recorder = open_recorder(tracker.name, rec_temp, **(recorder_options or {}))
         except BaseException:
             if writer is not None:
                 writer.abort()
-            part_path(recording).unlink(missing_ok=True)  # type: ignore[arg-type]
+            if rec_temp is not None:
+                rec_temp.unlink(missing_ok=True)
             raise
         frames, confirmed, interrupted = 0, set(), False
         shown, hidden = truth if truth is not None else ({}, {})
@@ -150,13 +154,13 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
         except KeyboardInterrupt:  # not installed (other thread) or raised by a callback
             signals.signum = signals.signum or signal.SIGINT
         except BaseException:
-            _abort(writer, recorder, recording)
+            _abort(writer, recorder, rec_temp)
             raise
         finally:
             getattr(stream, "close", lambda: None)()
         interrupted = signals.signum is not None
         if frames == 0 and not interrupted:
-            _abort(writer, recorder, recording)
+            _abort(writer, recorder, rec_temp)
             raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
         try:
             scores = None
@@ -176,9 +180,9 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
                     name = signal.Signals(signals.signum).name  # type: ignore[arg-type]
                     recorder.log_message(f"interrupted by {name} after {frames} frames", level="WARN")
                 recorder.close()
-                commit(recording)  # type: ignore[arg-type]
+                _replace(rec_temp, recording)  # type: ignore[arg-type]
         except BaseException:
-            _abort(writer, None, recording)
+            _abort(writer, None, rec_temp)
             raise
     seconds = time.perf_counter() - t_start
     skipped = tuple(sorted(getattr(clip, "skipped", None) or ()))
@@ -204,7 +208,16 @@ class _SkipLog:
                 recorder.log_message(f"skipped: {problem}", level="WARN")
 
 
-def _abort(writer: TracksWriter | None, recorder: Any, recording: Path | None) -> None:
+def _replace(temp: Path, path: Path) -> None:
+    import os
+
+    try:
+        os.replace(temp, path)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+
+def _abort(writer: TracksWriter | None, recorder: Any, rec_temp: Path | None) -> None:
     """Close and remove every partial output."""
     if writer is not None:
         writer.abort()
@@ -213,5 +226,5 @@ def _abort(writer: TracksWriter | None, recorder: Any, recording: Path | None) -
             recorder.close()
         except Exception:  # noqa: BLE001 - the file is removed anyway
             pass
-    if recording is not None:
-        part_path(recording).unlink(missing_ok=True)
+    if rec_temp is not None:
+        rec_temp.unlink(missing_ok=True)

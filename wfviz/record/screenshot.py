@@ -20,6 +20,8 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
+from wfviz.outputs import write_atomically
+
 if TYPE_CHECKING:
     from rerun.experimental import Timeline, ViewerClient
 
@@ -76,7 +78,7 @@ def render_screenshot(
         finally:
             _kill_group(proc)
     out_png.parent.mkdir(parents=True, exist_ok=True)
-    out_png.write_bytes(png)
+    write_atomically(out_png, png)
     return out_png
 
 

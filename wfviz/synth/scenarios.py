@@ -13,7 +13,6 @@ import csv
 import json
 import os
 import shutil
-import tempfile
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -23,6 +22,7 @@ import cv2
 import numpy as np
 
 from wfviz.frames import Frame
+from wfviz.outputs import remove_stale, temp_dir
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
 from wfviz.synth.scene import (Flight, SceneSpec, Target, add_noise, add_spot, add_spots,
                                render_background, to_uint16)
@@ -495,7 +495,8 @@ def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
     """
     out_dir = Path(out_dir)
     out_dir.parent.mkdir(parents=True, exist_ok=True)
-    tmp = Path(tempfile.mkdtemp(prefix=f".{out_dir.name}.", suffix=".part", dir=out_dir.parent))
+    remove_stale(out_dir.parent)
+    tmp = temp_dir(out_dir)
     try:
         meta, writer = clip.meta(), None
         if avi:
