@@ -374,3 +374,35 @@ def test_any_output_names_leave_inputs_whole(tmp_path_factory: pytest.TempPathFa
     assert r.exit_code in (0, 2), r.output
     if r.exit_code == 2:
         assert r.output.count("\n") <= 2 and "wfviz: error:" in r.output
+
+
+def test_a_recording_that_cannot_be_written_is_one_line(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    from wfviz.record.recorder import Recorder
+
+    np.save(tmp_path / "c.npy", noise(shape=(6, H, W)))
+
+    def fail(self, *args, **kwargs) -> None:  # noqa: ANN001, ANN002, ANN003
+        raise RuntimeError("File-writer thread shut down prematurely")  # what Rerun raises on a full disk
+
+    monkeypatch.setattr(Recorder, "log", fail)
+    r = invoke("record", str(tmp_path / "c.npy"), "-o", str(tmp_path / "r.rrd"), "--no-images")
+    assert r.exit_code == 2, r.output
+    assert f"{tmp_path / 'r.rrd'}: cannot write the recording" in r.output and "Traceback" not in r.output
+    assert not (tmp_path / "r.rrd").exists() and not (tmp_path / "r.csv").exists() and not temporaries(tmp_path)
+
+
+def test_a_full_output_folder_is_refused_before_the_run(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+    import shutil
+
+    np.save(tmp_path / "c.npy", noise(shape=(6, H, W)))
+    monkeypatch.setattr(shutil, "disk_usage", lambda p: shutil._ntuple_diskusage(10 << 20, 10 << 20, 4096))
+    r = invoke("track", str(tmp_path / "c.npy"), "--tracks", str(tmp_path / "t.csv"))
+    assert r.exit_code == 2 and "output folder is full (4 kB free)" in r.output
+
+
+def test_outputs_get_the_usual_permissions(tmp_path: Path) -> None:
+    np.save(tmp_path / "c.npy", noise(shape=(4, H, W)))
+    assert invoke("track", str(tmp_path / "c.npy"), "--tracks", str(tmp_path / "t.csv")).exit_code == 0
+    mask = os.umask(0)
+    os.umask(mask)
+    assert (tmp_path / "t.csv").stat().st_mode & 0o777 == 0o666 & ~mask

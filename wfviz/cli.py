@@ -229,8 +229,9 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) ->
 @app.callback()
 def _main(debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks on errors.")] = False) -> None:
     STATE["debug"] = debug
-    if not debug:  # FFmpeg's own decode errors: wfviz reports bad frames in one line
+    if not debug:  # FFmpeg's and Rerun's own error logs: wfviz reports the problem in one line
         os.environ.setdefault("OPENCV_FFMPEG_LOGLEVEL", "-8")
+        os.environ.setdefault("RUST_LOG", "off")
 
 
 @app.command()

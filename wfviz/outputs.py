@@ -19,6 +19,16 @@ TEMP_SUFFIX = ".wfviz-part"
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[^.]+" + re.escape(TEMP_SUFFIX) + "$")
 
 
+def _umask() -> int:
+    mask = os.umask(0)
+    os.umask(mask)
+    return mask
+
+
+_UMASK = _umask()
+MIN_FREE = 1 << 20  # bytes: below this an output folder counts as full (Rerun's writer hangs on a full disk)
+
+
 class OutputError(OSError):
     """An output path cannot be written (one-line message naming it)."""
 
@@ -28,7 +38,10 @@ def temp_path(path: Path) -> Path:
     two runs writing the same output never share a temporary file, and a run killed before
     renaming leaves a name :func:`remove_stale` recognises."""
     fd, name = tempfile.mkstemp(prefix=f".{path.name}.{os.getpid()}.", suffix=TEMP_SUFFIX, dir=path.parent)
-    os.close(fd)
+    try:
+        os.fchmod(fd, 0o666 & ~_UMASK)  # mkstemp's 0600 would make the output private
+    finally:
+        os.close(fd)
     return Path(name)
 
 
@@ -137,6 +150,12 @@ def check_writable(path: Path) -> None:
         raise OutputError(f"{parent}: cannot create output folder ({exc.strerror})") from None
     if path.is_dir():
         raise OutputError(f"{path}: is a folder, expected a file name")
+    try:
+        free = shutil.disk_usage(parent).free
+    except OSError:
+        free = MIN_FREE
+    if free < MIN_FREE:
+        raise OutputError(f"{parent}: output folder is full ({free // 1024} kB free)")
     probe = parent / f".wfviz-probe-{os.getpid()}"
     try:  # a real write: os.access says yes to root even on read-only mounts
         probe.write_bytes(b"")

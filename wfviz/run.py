@@ -5,7 +5,8 @@ from __future__ import annotations
 import signal
 import threading
 import time
-from collections.abc import Callable
+from collections.abc import Callable, Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from pathlib import Path
 from types import FrameType
@@ -134,8 +135,9 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
                 if writer is not None:
                     writer.write(frame.index, result.tracks)
                 if recorder is not None:
-                    recorder.log(frame, result)
-                    log_skipped(recorder)
+                    with _recording_errors(recording):
+                        recorder.log(frame, result)
+                        log_skipped(recorder)
                 if truth is not None:
                     pts = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
                     tracked[frame.index] = pts
@@ -179,7 +181,8 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
                 if interrupted:
                     name = signal.Signals(signals.signum).name  # type: ignore[arg-type]
                     recorder.log_message(f"interrupted by {name} after {frames} frames", level="WARN")
-                recorder.close()
+                with _recording_errors(recording):
+                    recorder.close()
                 _replace(rec_temp, recording)  # type: ignore[arg-type]
         except BaseException:
             _abort(writer, None, rec_temp)
@@ -206,6 +209,16 @@ class _SkipLog:
             if problem not in self.reported:
                 self.reported.add(problem)
                 recorder.log_message(f"skipped: {problem}", level="WARN")
+
+
+@contextmanager
+def _recording_errors(recording: Path | None) -> Iterator[None]:
+    """Rerun's file writer failing (a full disk: "File-writer thread shut down prematurely") as
+    a one-line OutputError naming the recording."""
+    try:
+        yield
+    except RuntimeError as exc:
+        raise OutputError(f"{recording}: cannot write the recording ({exc}; is the disk full?)") from None
 
 
 def _replace(temp: Path, path: Path) -> None:
