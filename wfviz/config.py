@@ -396,10 +396,15 @@ class TBDModelConfig:
     amplitude_std: float = field(default=3.0, metadata=_range(0.1, None))
     amplitude_min: float = field(default=1.0, metadata=_range(0.0, None))
     amplitude_walk: float = field(default=0.1, metadata=_range(0.0, None))
-    background: str = field(default="auto", metadata={"choices": ("auto", "global", "local")})
+    background: str = field(default="auto", metadata={"choices": ("auto", "temporal", "global", "local")})
     background_window: int = field(default=9, metadata=_range(3, 255))
     noise_window: int = field(default=31, metadata=_range(5, 255))
     remove_spikes: bool = True
+    background_memory: float = field(default=64.0, metadata=_range(2.0, 1e6))
+    background_clip: float = field(default=2.5, metadata=_range(0.5, 100.0))
+    noise_tile: int = field(default=16, metadata=_range(4, 256))
+    noise_memory: float = field(default=32.0, metadata=_range(1.0, 1e6))
+    hot_pixel_k: float = field(default=8.0, metadata=_range(2.0, 1e6))
 
 
 @dataclass(frozen=True)

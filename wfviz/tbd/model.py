@@ -96,10 +96,17 @@ def normalise(image: np.ndarray, method: str, window: int, spikes: bool = True, 
     y = res * np.float32(1.0 / sigma)
     texture = None
     if method != "global":
-        c = np.clip(y, -4.0, 4.0)
-        texture = np.sqrt(cv2.blur(c * c, (noise_window, noise_window), borderType=cv2.BORDER_REFLECT))
-        y /= np.maximum(texture, 0.5)
+        y, texture = texture_normalise(y, noise_window)
     return y, sigma, texture
+
+
+def texture_normalise(y: np.ndarray, noise_window: int) -> tuple[np.ndarray, np.ndarray]:
+    """(y / max(texture, 0.5), texture): texture = the local RMS of y over ``noise_window``
+    (values clipped at +-4 so that a target hardly raises it); about 1 on a clear sky, more
+    over clouds and ground."""
+    c = np.clip(y, -4.0, 4.0)
+    texture = np.sqrt(cv2.blur(c * c, (noise_window, noise_window), borderType=cv2.BORDER_REFLECT))
+    return y / np.maximum(texture, 0.5), texture
 
 
 def matched_filter(y: np.ndarray, sigma: float, radius: int) -> np.ndarray:

@@ -22,8 +22,9 @@ from wfviz.detection import Detections
 from wfviz.frames import Frame
 from wfviz.horizon import HorizonTracker, search_region
 from wfviz.imaging_circle import ImagingMask
+from wfviz.tbd.background import PixelBackground
 from wfviz.tbd.filter import BankOutput, RegionFilter
-from wfviz.tbd.model import matched_filter, normalise
+from wfviz.tbd.model import matched_filter, normalise, texture_normalise
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import Prediction, TrackEvent, TrackState
 
@@ -125,6 +126,10 @@ class TBDTracker:
         self.imaging = ImagingMask(self.config.circle)
         self._valid: np.ndarray | None = None
         self._search: np.ndarray | None = None
+        m = self.config.model
+        self._bg = PixelBackground(m.background_memory, m.background_clip, m.noise_tile, m.noise_memory,
+                                   m.hot_pixel_k)
+        self._hold: np.ndarray | None = None  # pixels under the last frame's targets
 
     # -- regions ------------------------------------------------------------------------------
     def _setup(self, shape: tuple[int, int]) -> None:
@@ -174,9 +179,36 @@ class TBDTracker:
 
     def _background(self) -> str:
         m = self.config.model.background
-        if m != "auto":
-            return m
-        return "global" if self._mode == "full" else "local"
+        return "temporal" if m == "auto" else m
+
+    def _normalise(self, img: np.ndarray) -> tuple[np.ndarray, float, np.ndarray | None]:
+        """(y, sigma, texture) by ``model.background``: "temporal" (per-pixel running
+        background, per-tile noise from frame differences, hot pixels excluded:
+        :mod:`wfviz.tbd.background`; over tiles and windows y is then divided by its local RMS as
+        for "local"), or the single-frame "global" / "local" estimates of :func:`normalise`."""
+        mc = self.config.model
+        method = self._background()
+        if method != "temporal":
+            return normalise(img, method, mc.background_window, mc.remove_spikes, mc.noise_window)
+        nf = self._bg.step(img, self._hold)
+        y = nf.y
+        texture = None
+        if self._mode != "full":
+            y, texture = texture_normalise(y, mc.noise_window)
+        return y, nf.sigma, texture
+
+    def _hold_mask(self, shape: tuple[int, int], estimates: list[tuple]) -> np.ndarray | None:
+        """Pixels within the PSF patch radius + 1 of this frame's estimated targets (their
+        background is not updated next frame, so a slow target is not learnt as background)."""
+        if not estimates:
+            return None
+        rows, cols = shape
+        rad = self.config.model.patch_radius + 1
+        mask = np.zeros(shape, bool)
+        for e in estimates:
+            c, r = int(round(e[0])), int(round(e[1]))
+            mask[max(r - rad, 0):max(min(r + rad + 1, rows), 0), max(c - rad, 0):max(min(c + rad + 1, cols), 0)] = True
+        return mask
 
     def _candidates(self, t: np.ndarray, texture: np.ndarray | None, index: int
                     ) -> tuple[np.ndarray, np.ndarray]:
@@ -248,8 +280,7 @@ class TBDTracker:
         t_start = time.perf_counter()
         if self._shape != img.shape:
             self._setup(img.shape)
-        y, sigma, texture = normalise(img, self._background(), c.model.background_window,
-                                      c.model.remove_spikes, c.model.noise_window)
+        y, sigma, texture = self._normalise(img)
         t = matched_filter(y, c.model.psf_sigma, c.model.patch_radius)
         sky = self._search_region(img)
         if sky is not None:  # no evidence outside the search region
@@ -289,6 +320,7 @@ class TBDTracker:
                 pts[:, 1] += b.y0
                 particles.append(pts)
         t2 = time.perf_counter()
+        self._hold = self._hold_mask(img.shape, estimates)
         tracks, preds, events, amps, stds = self._associate(frame.index, estimates, c)
         changed = count != self._count
         if changed:

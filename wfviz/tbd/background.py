@@ -1,0 +1,121 @@
+"""Per-pixel background and noise of the track-before-detect likelihood, estimated from the data.
+
+The likelihood of :mod:`wfviz.tbd.model` needs y = (z - b) / sigma with y ~ N(0, 1) where there
+is no target. Neither b nor sigma is assumed:
+
+* **background b** (per pixel): a running mean of the frames (rate 1/k over the first frames,
+  then an exponential memory of ``memory`` frames). Each update moves b by the residual
+  z - b clipped at +-``clip`` times its std, so a dim target passing over a pixel biases it
+  little, and pixels near the filter's current targets (``hold``) are not updated at all. A
+  fixed background of any structure (a sky gradient, cloud texture, fixed-pattern offsets, a
+  hot pixel's constant excess) is learnt and removed; the spatial median of one frame is not
+  enough when the background varies by more than the noise over the frame.
+* **noise sigma** (per tile, hence signal dependent at the tile scale): 1.4826 MAD / sqrt(2) of
+  the frame-to-frame difference z_k - z_k-1 over ``tile`` x ``tile`` tiles (the background
+  cancels, a moving target barely moves a median), averaged over time in variance (rate 1/k,
+  then ``noise_memory`` frames) and upsampled bilinearly to the pixels.
+* **background uncertainty**: b is a mean of finitely many frames; its variance in units of
+  sigma^2, f_k = (1 - rho)^2 f_k-1 + rho^2, is added: y = (z - b) / (sigma sqrt(1 + f)).
+* **hot (and dead) pixels**: a pixel whose background differs from its 3 x 3 neighbours'
+  median by more than ``hot_k`` sigma (after ``hot_after`` frames) carries no target evidence:
+  its y is set to 0 (excluded from the matched filter and the likelihood sums a = sum h y).
+
+On the first frame there is no background yet: y = 0 (no evidence). Pure numpy/OpenCV state,
+no recording.
+"""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+
+import cv2
+import numpy as np
+
+_MAD = 1.4826
+
+
+@dataclass(frozen=True)
+class NoiseFrame:
+    """One frame's normalisation: y, the median noise sigma (DN), the per-pixel sigma map
+    (DN, including the background uncertainty), the background (DN) and the excluded pixels."""
+
+    y: np.ndarray
+    sigma: float
+    sigma_map: np.ndarray
+    background: np.ndarray
+    excluded: np.ndarray
+
+
+def tile_sigma(d: np.ndarray, tile: int) -> np.ndarray:
+    """(ny, nx) robust std (1.4826 MAD about the median) of ``d`` over ``tile`` x ``tile``
+    tiles; the last row/column of tiles is padded by reflection."""
+    rows, cols = d.shape
+    ny, nx = -(-rows // tile), -(-cols // tile)
+    pr, pc = ny * tile - rows, nx * tile - cols
+    if pr or pc:
+        d = np.pad(d, ((0, pr), (0, pc)), mode="reflect")
+    blocks = d.reshape(ny, tile, nx, tile).transpose(0, 2, 1, 3).reshape(ny, nx, tile * tile)
+    med = np.median(blocks, axis=-1, keepdims=True)
+    return _MAD * np.median(np.abs(blocks - med), axis=-1)
+
+
+class PixelBackground:
+    """Running per-pixel background, per-tile noise and hot-pixel mask (see the module doc)."""
+
+    def __init__(self, memory: float = 64.0, clip: float = 2.5, tile: int = 16, noise_memory: float = 32.0,
+                 hot_k: float = 8.0, hot_after: int = 5) -> None:
+        self.memory, self.clip, self.tile = float(memory), float(clip), int(tile)
+        self.noise_memory, self.hot_k, self.hot_after = float(noise_memory), float(hot_k), int(hot_after)
+        self.b: np.ndarray | None = None
+        self.f: float = 1.0
+        self.prev: np.ndarray | None = None
+        self.var: np.ndarray | None = None  # tile noise variance
+        self.frames = 0
+
+    def _sigma_map(self, shape: tuple[int, int]) -> np.ndarray:
+        s = np.sqrt(np.maximum(self.var, 1e-12)).astype(np.float32)
+        if s.shape == (1, 1):
+            return np.full(shape, float(s[0, 0]), dtype=np.float32)
+        big = cv2.resize(s, (s.shape[1] * self.tile, s.shape[0] * self.tile), interpolation=cv2.INTER_LINEAR)
+        return np.ascontiguousarray(big[: shape[0], : shape[1]])
+
+    def step(self, image: np.ndarray, hold: np.ndarray | None = None) -> NoiseFrame:
+        """Normalise ``image`` with the model of the previous frames, then update the model
+        with it (``hold``: boolean mask of pixels whose background is not updated)."""
+        z = image.astype(np.float32, copy=False)
+        if self.b is None or self.b.shape != z.shape:
+            self.b = z.copy()
+            self.f = 1.0
+            self.prev = z
+            self.var = None
+            self.frames = 1
+            res = z - float(np.median(z))
+            s = _MAD * float(np.median(np.abs(res - np.median(res))))
+            zero = np.zeros(z.shape, np.float32)
+            return NoiseFrame(zero, max(s, 1e-6), np.full(z.shape, max(s, 1e-6), np.float32), self.b.copy(),
+                              np.zeros(z.shape, bool))
+        k = self.frames
+        # noise: frame differences, per tile, averaged over time in variance
+        v = (tile_sigma(z - self.prev, self.tile) ** 2) * 0.5
+        v = np.maximum(v, 1e-6)
+        rate = max(1.0 / k, 1.0 / self.noise_memory)
+        self.var = v if self.var is None else (1.0 - rate) * self.var + rate * v
+        sig = self._sigma_map(z.shape)
+        total = sig * np.float32(np.sqrt(1.0 + self.f))
+        res = z - self.b
+        y = res / total
+        excluded = np.zeros(z.shape, bool)
+        if k >= self.hot_after:
+            d = self.b - cv2.medianBlur(self.b, 3) if min(z.shape) >= 3 else np.zeros_like(z)
+            excluded = np.abs(d) > self.hot_k * sig
+            y[excluded] = 0.0
+        # background update (clipped residual, rate 1/(k+1) then 1/memory), not under targets
+        rho = max(1.0 / (k + 1), 1.0 / self.memory)
+        step = np.clip(res, -self.clip * total, self.clip * total) * np.float32(rho)
+        if hold is not None and hold.any():
+            step[hold] = 0.0
+        self.b = self.b + step
+        self.f = (1.0 - rho) ** 2 * self.f + rho ** 2
+        self.prev = z
+        self.frames += 1
+        return NoiseFrame(y, float(np.median(sig)), total, self.b, excluded)
