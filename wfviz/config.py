@@ -405,6 +405,7 @@ class TBDModelConfig:
     noise_tile: int = field(default=16, metadata=_range(4, 256))
     noise_memory: float = field(default=32.0, metadata=_range(1.0, 1e6))
     hot_pixel_k: float = field(default=8.0, metadata=_range(2.0, 1e6))
+    background_coherence: float = field(default=10.0, metadata=_range(1.0, 1e6))
 
 
 @dataclass(frozen=True)

@@ -14,13 +14,24 @@ is no target. Neither b nor sigma is assumed:
   the frame-to-frame difference z_k - z_k-1 over ``tile`` x ``tile`` tiles (the background
   cancels, a moving target barely moves a median), averaged over time in variance (rate 1/k,
   then ``noise_memory`` frames) and upsampled bilinearly to the pixels.
-* **background uncertainty**: b is a mean of finitely many frames; its variance in units of
-  sigma^2, f_k = (1 - rho)^2 f_k-1 + rho^2, is added: y = (z - b) / (sigma sqrt(1 + f)).
+* **shrinkage to a smooth background**: the per-pixel mean b_t is a mean of finitely many
+  frames, its error variance in units of sigma^2 is f_k = (1 - rho)^2 f_k-1 + rho^2. Where the
+  background is flat, the tile medians of b_t (bilinearly upsampled, b_s) are far more
+  precise. Both are combined by their variances (empirical Bayes): the spread of the true
+  background about b_s, tau^2 = max(s^2 - f, 0) with s the robust std of (b_t - b_s) / sigma
+  per tile, gives b = b_s + w (b_t - b_s), w = tau^2 / (tau^2 + f), whose error variance
+  w f sigma^2 is added to the noise. That error is the same in every frame (until b is
+  renewed), so a filter summing T frames of evidence sees it T times coherently (T^2 w f
+  against T for the noise): y = (z - b) / (sigma sqrt(1 + T w f)), T = ``coherence``. Without
+  it the noise of the first frames, learnt as background, looks like static dim targets. A flat sky gives
+  w ~ 0 (b = the tile medians, as good as the frame median from the first frame); a
+  structured background (S6: 45 DN of texture against 9 DN noise) gives w ~ 1.
 * **hot (and dead) pixels**: a pixel whose background differs from its 3 x 3 neighbours'
-  median by more than ``hot_k`` sigma (after ``hot_after`` frames) carries no target evidence:
+  median by more than ``hot_k`` sigma (from frame ``hot_after`` on) carries no target evidence:
   its y is set to 0 (excluded from the matched filter and the likelihood sums a = sum h y).
 
-On the first frame there is no background yet: y = 0 (no evidence). Pure numpy/OpenCV state,
+On the first frame there is no noise estimate yet (a frame alone cannot tell texture from
+noise): y = 0, no evidence. Pure numpy/OpenCV state,
 no recording.
 """
 
@@ -63,7 +74,8 @@ class PixelBackground:
     """Running per-pixel background, per-tile noise and hot-pixel mask (see the module doc)."""
 
     def __init__(self, memory: float = 64.0, clip: float = 2.5, tile: int = 16, noise_memory: float = 32.0,
-                 hot_k: float = 8.0, hot_after: int = 5) -> None:
+                 hot_k: float = 8.0, hot_after: int = 1, coherence: float = 10.0) -> None:
+        self.coherence = float(coherence)
         self.memory, self.clip, self.tile = float(memory), float(clip), int(tile)
         self.noise_memory, self.hot_k, self.hot_after = float(noise_memory), float(hot_k), int(hot_after)
         self.b: np.ndarray | None = None
@@ -72,12 +84,25 @@ class PixelBackground:
         self.var: np.ndarray | None = None  # tile noise variance
         self.frames = 0
 
-    def _sigma_map(self, shape: tuple[int, int]) -> np.ndarray:
-        s = np.sqrt(np.maximum(self.var, 1e-12)).astype(np.float32)
-        if s.shape == (1, 1):
-            return np.full(shape, float(s[0, 0]), dtype=np.float32)
-        big = cv2.resize(s, (s.shape[1] * self.tile, s.shape[0] * self.tile), interpolation=cv2.INTER_LINEAR)
+    def _upsample(self, grid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
+        """Tile grid -> pixels, bilinear between tile centres."""
+        grid = grid.astype(np.float32, copy=False)
+        if grid.shape == (1, 1):
+            return np.full(shape, float(grid[0, 0]), dtype=np.float32)
+        big = cv2.resize(grid, (grid.shape[1] * self.tile, grid.shape[0] * self.tile), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(big[: shape[0], : shape[1]])
+
+    def _sigma_map(self, shape: tuple[int, int]) -> np.ndarray:
+        return self._upsample(np.sqrt(np.maximum(self.var, 1e-12)), shape)
+
+    def _smooth(self, b: np.ndarray) -> np.ndarray:
+        """b_s: the tile medians of ``b``, upsampled."""
+        rows, cols = b.shape
+        ny, nx = -(-rows // self.tile), -(-cols // self.tile)
+        pr, pc = ny * self.tile - rows, nx * self.tile - cols
+        p = np.pad(b, ((0, pr), (0, pc)), mode="reflect") if pr or pc else b
+        med = np.median(p.reshape(ny, self.tile, nx, self.tile).transpose(0, 2, 1, 3).reshape(ny, nx, -1), axis=-1)
+        return self._upsample(med, b.shape)
 
     def step(self, image: np.ndarray, hold: np.ndarray | None = None) -> NoiseFrame:
         """Normalise ``image`` with the model of the previous frames, then update the model
@@ -87,12 +112,10 @@ class PixelBackground:
             self.b = z.copy()
             self.f = 1.0
             self.prev = z
-            self.var = None
             self.frames = 1
-            res = z - float(np.median(z))
-            s = _MAD * float(np.median(np.abs(res - np.median(res))))
-            zero = np.zeros(z.shape, np.float32)
-            return NoiseFrame(zero, max(s, 1e-6), np.full(z.shape, max(s, 1e-6), np.float32), self.b.copy(),
+            s = _MAD * float(np.median(np.abs(z - np.median(z))))
+            sig = np.full(z.shape, max(s, 1e-6), np.float32)
+            return NoiseFrame(np.zeros(z.shape, np.float32), max(s, 1e-6), sig, self.b.copy(),
                               np.zeros(z.shape, bool))
         k = self.frames
         # noise: frame differences, per tile, averaged over time in variance
@@ -101,9 +124,15 @@ class PixelBackground:
         rate = max(1.0 / k, 1.0 / self.noise_memory)
         self.var = v if self.var is None else (1.0 - rate) * self.var + rate * v
         sig = self._sigma_map(z.shape)
-        total = sig * np.float32(np.sqrt(1.0 + self.f))
+        total = sig * np.float32(np.sqrt(1.0 + self.f))  # of z - b_t
         res = z - self.b
-        y = res / total
+        bs = self._smooth(self.b)
+        spread = tile_sigma((self.b - bs) / sig, self.tile) ** 2
+        tau2 = np.maximum(spread - self.f, 0.0)
+        w = self._upsample((tau2 / (tau2 + self.f)).astype(np.float32), z.shape)
+        back = bs + w * (self.b - bs)
+        scale = sig * np.sqrt(1.0 + w * np.float32(self.coherence * self.f))
+        y = (z - back) / scale
         excluded = np.zeros(z.shape, bool)
         if k >= self.hot_after:
             d = self.b - cv2.medianBlur(self.b, 3) if min(z.shape) >= 3 else np.zeros_like(z)
@@ -118,4 +147,4 @@ class PixelBackground:
         self.f = (1.0 - rho) ** 2 * self.f + rho ** 2
         self.prev = z
         self.frames += 1
-        return NoiseFrame(y, float(np.median(sig)), total, self.b, excluded)
+        return NoiseFrame(y, float(np.median(sig)), scale, back, excluded)

@@ -128,7 +128,7 @@ class TBDTracker:
         self._search: np.ndarray | None = None
         m = self.config.model
         self._bg = PixelBackground(m.background_memory, m.background_clip, m.noise_tile, m.noise_memory,
-                                   m.hot_pixel_k)
+                                   m.hot_pixel_k, coherence=m.background_coherence)
         self._hold: np.ndarray | None = None  # pixels under the last frame's targets
 
     # -- regions ------------------------------------------------------------------------------
