@@ -27,7 +27,9 @@ is no target. Neither b nor sigma is assumed:
   w ~ 0 (b = the tile medians, as good as the frame median from the first frame); a
   structured background (S6: 45 DN of texture against 9 DN noise) gives w ~ 1.
 * **hot (and dead) pixels**: a pixel whose background differs from its 3 x 3 neighbours'
-  median by more than ``hot_k`` sigma (from frame ``hot_after`` on) carries no target evidence:
+  median by more than ``hot_k`` times the larger of sigma and the tile's robust spread of that
+  difference (a textured background is not a field of hot pixels), from frame ``hot_after``
+  on, carries no target evidence:
   its y is set to 0 (excluded from the matched filter and the likelihood sums a = sum h y).
 
 On the first frame there is no noise estimate yet (a frame alone cannot tell texture from
@@ -92,6 +94,13 @@ class PixelBackground:
         big = cv2.resize(grid, (grid.shape[1] * self.tile, grid.shape[0] * self.tile), interpolation=cv2.INTER_LINEAR)
         return np.ascontiguousarray(big[: shape[0], : shape[1]])
 
+    @staticmethod
+    def _coarse(grid: np.ndarray) -> np.ndarray:
+        """Tile values averaged over each tile's 3 x 3 neighbourhood (a spread estimate of 256
+        pixels is too noisy to subtract f from it)."""
+        g = grid.astype(np.float32)
+        return cv2.blur(g, (3, 3), borderType=cv2.BORDER_REPLICATE) if g.size > 1 else g
+
     def _sigma_map(self, shape: tuple[int, int]) -> np.ndarray:
         return self._upsample(np.sqrt(np.maximum(self.var, 1e-12)), shape)
 
@@ -127,7 +136,7 @@ class PixelBackground:
         total = sig * np.float32(np.sqrt(1.0 + self.f))  # of z - b_t
         res = z - self.b
         bs = self._smooth(self.b)
-        spread = tile_sigma((self.b - bs) / sig, self.tile) ** 2
+        spread = self._coarse(tile_sigma((self.b - bs) / sig, self.tile) ** 2)
         tau2 = np.maximum(spread - self.f, 0.0)
         w = self._upsample((tau2 / (tau2 + self.f)).astype(np.float32), z.shape)
         back = bs + w * (self.b - bs)
@@ -136,7 +145,8 @@ class PixelBackground:
         excluded = np.zeros(z.shape, bool)
         if k >= self.hot_after:
             d = self.b - cv2.medianBlur(self.b, 3) if min(z.shape) >= 3 else np.zeros_like(z)
-            excluded = np.abs(d) > self.hot_k * sig
+            spread_d = self._upsample(tile_sigma(d, self.tile), z.shape)  # pixel-scale texture
+            excluded = np.abs(d) > self.hot_k * np.maximum(sig, spread_d)
             y[excluded] = 0.0
         # background update (clipped residual, rate 1/(k+1) then 1/memory), not under targets
         rho = max(1.0 / (k + 1), 1.0 / self.memory)
