@@ -386,7 +386,19 @@ class StarfieldConfig:
 
 @dataclass(frozen=True)
 class TBDModelConfig:
-    """Track-before-detect model: constant-velocity targets, truncated Gaussian PSF, amplitude prior."""
+    """Track-before-detect model: constant-velocity targets, truncated Gaussian PSF, amplitude prior.
+
+    ``psf_sigma``: PSF width (px; configured, the likelihood and matched filter use it).
+    ``background``: "temporal" (auto) per-pixel running background + per-tile noise
+    (:mod:`wfviz.tbd.background`); "global"/"local" single-frame estimates.
+    ``background_memory``: frames of the running background (rate 1/k before).
+    ``background_clip``: each background update clipped at this many of its std.
+    ``noise_tile``: tile (px) of the noise sigma from frame differences.
+    ``noise_memory``: frames over which the tile noise variance is averaged.
+    ``hot_pixel_k``: a pixel whose background is this many sigma (or texture spreads) off its
+    3 x 3 median is excluded from the likelihood.
+    ``background_coherence``: frames over which the background's error counts coherently.
+    """
 
     psf_sigma: float = field(default=0.8, metadata=_range(0.3, 5.0))
     patch_radius: int = field(default=2, metadata=_range(1, 8))
