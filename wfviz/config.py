@@ -288,7 +288,7 @@ class StarSegmentationConfig:
     background_block: int = field(default=32, metadata=_range(4, 256))
     background_sigma: float = field(default=4.0, metadata=_range(0.5, 64.0))
     smooth_sigma: float = field(default=1.0, metadata=_range(0.0, 5.0))
-    k_sigma: float = field(default=5.0, metadata=_range(0.5, None))
+    k_sigma: float = field(default=4.0, metadata=_range(0.5, None))
     min_area: int = field(default=2, metadata=_range(1, None))
     max_area: int = field(default=2000, metadata=_range(1, None))
 

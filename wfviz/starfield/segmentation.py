@@ -7,6 +7,14 @@ map (``level`` and ``sigma`` its median and MAD-based std, robust against the st
 8-connected components, one star point each, with the intensity-weighted centroid of the
 unsmoothed residual over the component.
 
+A point whose brightest residual pixel carries more than ``SHARP_FRACTION`` of the light in the
+5x5 box around it is *sharp*: no optical point source does that (a Gaussian PSF of sigma >= 0.5 px puts at most
+~47 % of its light in one pixel, the 1.15 px PSF of a telescope ~12 %), a single-pixel sensor
+event does (hot pixel, cosmic-ray hit: ~100 %). Sharp points stand still on the sensor while
+the sky jitters, so they are kept out of the star pairing (a registration voting on them
+locks onto the sensor, displacement 0) and out of the candidates (:class:`Segmentation`'s
+``sharp``).
+
 :func:`resegment` re-thresholds a small window around a prediction with a threshold computed
 from that window alone (the paper's "re-segmentation with a new, lower threshold").
 """
@@ -23,6 +31,7 @@ from wfviz.config import StarSegmentationConfig
 from wfviz.detection import Detections
 
 _SAMPLE = 8  # every 8th row and column for the robust statistics
+SHARP_FRACTION = 0.5  # share of a component's flux in its brightest pixel above which it is sharp
 
 
 @dataclass(frozen=True)
@@ -32,7 +41,8 @@ class Segmentation:
     ``points`` are all components (stars, targets, noise, defects), brightest ``flux`` first;
     ``residual`` is the frame minus its background, ``smoothed`` the detection map,
     ``level`` and ``sigma`` its robust median and std; ``points.threshold`` =
-    level + k_sigma * sigma.
+    level + k_sigma * sigma; ``sharp`` (N,) bool: the point is a single-pixel event (module
+    docstring), not an optical point source.
     """
 
     points: Detections
@@ -40,6 +50,7 @@ class Segmentation:
     smoothed: np.ndarray
     level: float
     sigma: float
+    sharp: np.ndarray | None = None
 
 
 @dataclass(frozen=True)
@@ -138,7 +149,27 @@ def segment(image: np.ndarray, cfg: StarSegmentationConfig) -> Segmentation:
     thr = level + cfg.k_sigma * sigma
     binary = (smoothed > thr).view(np.uint8)
     pts = _components(binary, residual, smoothed, cfg.min_area, cfg.max_area, thr)
-    return Segmentation(pts, residual, smoothed, level, sigma)
+    return Segmentation(pts, residual, smoothed, level, sigma, sharpness(pts, residual) > SHARP_FRACTION)
+
+
+def sharpness(pts: Detections, residual: np.ndarray) -> np.ndarray:
+    """Per point: its brightest residual pixel (3x3 around the centroid) over the residual's
+    sum in the 5x5 box around the centroid (the component's own flux would do for bright
+    points, but a faint one has few pixels above the threshold)."""
+    if not len(pts):
+        return np.zeros(0)
+    h, w = residual.shape
+    xi = np.clip(np.rint(pts.xy[:, 0]).astype(np.int64), 2, w - 3)
+    yi = np.clip(np.rint(pts.xy[:, 1]).astype(np.int64), 2, h - 3)
+    best = np.full(len(pts), -np.inf)
+    total = np.zeros(len(pts))
+    for dy in range(-2, 3):
+        for dx in range(-2, 3):
+            v = residual[yi + dy, xi + dx].astype(np.float64)
+            total += v
+            if abs(dx) <= 1 and abs(dy) <= 1:
+                best = np.maximum(best, v)
+    return best / np.maximum(total, np.maximum(best, 1e-6))
 
 
 def resegment(residual: np.ndarray, sigma: float, x: float, y: float, window: int, k_sigma: float,

@@ -107,6 +107,7 @@ class StarfieldTracker:
         c = self.config
         self.manager = ChainManager(c.chains, c.kalman, c.tracking)
         self._prev: tuple[Detections, np.ndarray] | None = None  # previous points, their to-reference map
+        self._prev_optical = np.zeros(0, np.int64)  # previous points that are not sharp (registration input)
         self._to_ref = np.eye(3)  # this frame's image -> reference frame
         self._catalogue = np.zeros((0, 2))  # known stars, reference frame, and their flux
         self._catalogue_flux = np.zeros(0)
@@ -176,10 +177,13 @@ class StarfieldTracker:
         return status
 
     def _candidates(self, frame: int, pts: Detections, idx: np.ndarray, to_ref: np.ndarray,
-                    shape: tuple[int, int], defects: bool = True) -> tuple[Candidates, np.ndarray]:
+                    shape: tuple[int, int], defects: bool = True, sharp: np.ndarray | None = None
+                    ) -> tuple[Candidates, np.ndarray]:
         uv = pts.xy[idx]
         ref = apply(to_ref, uv)
         status = self._classify(uv, ref, shape, defects)
+        if sharp is not None:  # single-pixel events (segmentation.sharpness) are sensor defects
+            status[sharp & (status == CANDIDATE)] = DEFECT
         keep = status == CANDIDATE
         return Candidates(frame, ref[keep], uv[keep], idx[keep]), status
 
@@ -230,11 +234,17 @@ class StarfieldTracker:
         pts = seg.points
         lap("segment")
         prev = self._prev
+        sharp = seg.sharp if seg.sharp is not None else np.zeros(len(pts), dtype=bool)
+        optical = np.nonzero(~sharp)[0]  # single-pixel sensor events stand still: no registration input
         if prev is None:
-            reg = replace(register(np.zeros((0, 2)), np.zeros(0), pts.xy, pts.flux, shape, c.registration),
-                          note="first frame")
+            reg = replace(register(np.zeros((0, 2)), np.zeros(0), pts.xy[optical], pts.flux[optical], shape,
+                                   c.registration), note="first frame")
         else:
-            reg = register(prev[0].xy, prev[0].flux, pts.xy, pts.flux, shape, c.registration)
+            po = self._prev_optical
+            reg = register(prev[0].xy[po], prev[0].flux[po], pts.xy[optical], pts.flux[optical], shape,
+                           c.registration)
+            if len(reg.pairs):  # indices back into all points
+                reg = replace(reg, pairs=np.column_stack([po[reg.pairs[:, 0]], optical[reg.pairs[:, 1]]]))
             if reg.ok:  # chain the motion: this frame -> previous frame -> reference frame
                 self._to_ref = prev[1] @ np.linalg.inv(_h(reg.matrix))
         to_ref, to_img = self._to_ref[:2], np.linalg.inv(self._to_ref)[:2]
@@ -253,7 +263,7 @@ class StarfieldTracker:
             else:  # first registered pair: the previous frame's points unpaired with this one
                 idx0 = np.setdiff1d(np.arange(len(prev[0])), reg.pairs[:, 0])
                 m.past.append(self._candidates(k - 1, prev[0], idx0, prev[1][:2], shape, defects=False)[0])
-            cands, status = self._candidates(k, pts, unpaired, to_ref, shape)
+            cands, status = self._candidates(k, pts, unpaired, to_ref, shape, sharp=sharp[unpaired])
         else:
             cands = Candidates(k, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64))
             status = np.full(len(unpaired), NOT_REGISTERED, np.int64)
@@ -279,6 +289,7 @@ class StarfieldTracker:
         timings["chains"] -= reseg_ms
         timings["resegment"] = reseg_ms
         self._prev = (pts, self._to_ref.copy())
+        self._prev_optical = optical
         return self._result(frame, seg, reg, paired, segments, unpaired, status, to_ref, to_img, preds,
                             events, redets, timer)
 
