@@ -83,7 +83,9 @@ def test_drifting_rotating_field_with_bright_hot_pixels_is_registered():
         err = np.hypot(*(apply(truth, grid) - apply(r.to_reference, grid)).T).max()
         assert err < 0.1, (k, err, r.registration.method, r.registration.note)
         if k:
-            assert r.registration.ok and abs(r.registration.rotation - 0.02) < 0.005
+            # the frame-to-frame rotation estimate's own spread is 0.002 deg (sd over 8 such
+            # fields x 5 frames, 110 pairs of rms 0.1 px): 0.0075 is ~3.7 sd
+            assert r.registration.ok and abs(r.registration.rotation - 0.02) < 0.0075
             assert len(r.registration.pairs) >= 80
             paired_xy = r.stars.xy[r.registration.pairs[:, 1]]
             d_hot = np.min(np.hypot(*(paired_xy[:, None, :] - hot[None]).transpose(2, 0, 1)), axis=1)
@@ -95,7 +97,7 @@ def test_drifting_rotating_field_with_bright_hot_pixels_is_registered():
 def test_s5_cli_tracks_both_targets(tmp_path):
     """`wfviz track S5 --tracker starfield`: both targets confirmed, no false track (floors a
     little below the measured: online p_d 0.75 / 0.80 -- confirmation takes 5 points -- and
-    the paper's p_d on the chains 0.90 / 0.80, p_f 0)."""
+    the paper's p_d on the chains 1.00 / 1.00, p_f 0)."""
     out = tmp_path / "s5.csv"
     p = subprocess.run([sys.executable, "-m", "wfviz", "track", str(S5), "--tracker", "starfield",
                         "--tracks", str(out)], capture_output=True, text=True, timeout=300, cwd=tmp_path)
@@ -120,7 +122,7 @@ def test_s5_paper_metrics_on_the_chains():
     shown, hidden = read_truth(S5 / "truth.csv")
     s = paper_scores(chain_rows(tracker.manager.chains()), shown, hidden)
     print(s.table())
-    assert s.p_d[1] >= 0.85 and s.p_d[2] >= 0.75
-    assert s.p_f <= 0.02
+    assert s.p_d[1] >= 0.95 and s.p_d[2] >= 0.95  # measured 1.00 / 1.00
+    assert s.p_f <= 0.02  # measured 0
     meta = json.loads((S5 / "meta.json").read_text())
     assert len(meta["sensor"]["hot_pixels"]) > 0

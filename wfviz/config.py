@@ -289,6 +289,8 @@ class StarSegmentationConfig:
     background_sigma: float = field(default=4.0, metadata=_range(0.5, 64.0))
     smooth_sigma: float = field(default=1.0, metadata=_range(0.0, 5.0))
     k_sigma: float = field(default=4.0, metadata=_range(0.5, None))
+    noise_tile: int = field(default=64, metadata=_range(0, 1024))
+    column_offsets: bool = True
     min_area: int = field(default=2, metadata=_range(1, None))
     max_area: int = field(default=2000, metadata=_range(1, None))
 

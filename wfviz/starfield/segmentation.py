@@ -29,8 +29,10 @@ import numpy as np
 
 from wfviz.config import StarSegmentationConfig
 from wfviz.detection import Detections
+from wfviz.noise import fill_missing, tile_statistics, upsample
 
 _SAMPLE = 8  # every 8th row and column for the robust statistics
+DEAD_SIGMA = 5.0  # a pixel this many robust stds below its 3x3 median is a dead pixel
 SHARP_FRACTION = 0.5  # share of a component's flux in its brightest pixel above which it is sharp
 
 
@@ -40,9 +42,11 @@ class Segmentation:
 
     ``points`` are all components (stars, targets, noise, defects), brightest ``flux`` first;
     ``residual`` is the frame minus its background, ``smoothed`` the detection map,
-    ``level`` and ``sigma`` its robust median and std; ``points.threshold`` =
-    level + k_sigma * sigma; ``sharp`` (N,) bool: the point is a single-pixel event (module
-    docstring), not an optical point source.
+    ``level`` and ``sigma`` its robust median and std (the median of the local noise map
+    when there is one); ``points.threshold`` = level + k_sigma * sigma; ``sharp`` (N,) bool:
+    the point is a single-pixel event (module docstring), not an optical point source;
+    ``level_map``/``sigma_map``: the local level and noise of ``smoothed`` per pixel
+    (:func:`local_noise`; None with ``noise_tile`` 0), against which pixels were thresholded.
     """
 
     points: Detections
@@ -51,6 +55,15 @@ class Segmentation:
     level: float
     sigma: float
     sharp: np.ndarray | None = None
+    level_map: np.ndarray | None = None
+    sigma_map: np.ndarray | None = None
+
+    def sigma_at(self, x: float, y: float) -> float:
+        """The detection map's local noise at image position (x, y)."""
+        if self.sigma_map is None:
+            return self.sigma
+        h, w = self.sigma_map.shape
+        return float(self.sigma_map[min(max(int(round(y)), 0), h - 1), min(max(int(round(x)), 0), w - 1)])
 
 
 @dataclass(frozen=True)
@@ -77,12 +90,21 @@ def robust_stats(a: np.ndarray, step: int = _SAMPLE) -> tuple[float, float]:
 def estimate_background(image: np.ndarray, block: int, sigma: float, clip: float = 2.5) -> np.ndarray:
     """Smooth background of a star field (float32, full size).
 
-    A first guess is the 3x3 median of ``block`` x ``block`` block means (a block holding a
-    bright star is an outlier among its neighbours); pixels more than ``clip`` robust stds
-    above it (the stars) are clipped to that level, and the result is Gaussian-blurred with ``sigma``
-    px on a grid downsampled by ``max(1, sigma // 2)``.
+    Pixels more than ``DEAD_SIGMA`` robust stds below the median of their 3x3 neighbourhood
+    (dead pixels: single-pixel low events) are first raised to that level. Left in, a dead
+    pixel of 0 DN on a 1600 DN sky pulled the blurred background ~15 DN down over a few px
+    around it: a ring of +4 sigma in the residual that segmented as points standing still on
+    the sensor. (Clipping all low outliers against the block guess instead, or taking the
+    background of the 3x3 median image, changes it over dark or fine extended structure: the
+    synth scenario long-1024 lost 0.05-0.2 MOTA.) A first guess is the 3x3 median of ``block`` x ``block`` block means (a block
+    holding a bright star is an outlier among its neighbours); pixels more than ``clip``
+    robust stds above it (the stars) are clipped to that level, and the result is
+    Gaussian-blurred with ``sigma`` px on a grid downsampled by ``max(1, sigma // 2)``.
     """
     img = image.astype(np.float32, copy=False)
+    med = cv2.medianBlur(img, 3)
+    _, sd = robust_stats(img - med)
+    img = cv2.max(img, med - np.float32(DEAD_SIGMA * sd))  # dead pixels raised to their neighbours
     h, w = img.shape
     bw, bh = max(1, w // block), max(1, h // block)
     small = cv2.medianBlur(cv2.resize(img, (bw, bh), interpolation=cv2.INTER_AREA), 3)
@@ -139,17 +161,61 @@ def _components(binary: np.ndarray, residual: np.ndarray, smoothed: np.ndarray,
         labels=labels if labels_out else np.zeros((0, 0), np.int32), threshold=threshold)
 
 
+def local_noise(smoothed: np.ndarray, tile: int, smooth_sigma: float, clip: float = 3.0
+                ) -> tuple[np.ndarray, np.ndarray, float, float]:
+    """(level map, sigma map, median level, median sigma) of the detection map ``smoothed``.
+
+    The sources are masked first: pixels above the global robust median + ``clip`` robust stds,
+    grown by the reach of a smoothed point source (3 * sqrt(2) * ``smooth_sigma`` px, the
+    matched filter's size standing in for the PSF's), so neither a star's core nor its wing
+    enters the statistics. The rest gives a clipped median and std per ``tile`` x ``tile``
+    tile (:func:`wfviz.noise.tile_statistics`; tiles with too few free pixels take their
+    nearest neighbour's), bilinearly interpolated to every pixel."""
+    level0, sigma0 = robust_stats(smoothed)
+    r = max(1, int(math.ceil(3.0 * math.sqrt(2.0) * max(smooth_sigma, 0.5))))
+    src = (smoothed > np.float32(level0 + clip * sigma0)).view(np.uint8)
+    free = cv2.dilate(src, cv2.getStructuringElement(cv2.MORPH_ELLIPSE, (2 * r + 1, 2 * r + 1))) == 0
+    lv, sg, _, _ = tile_statistics(smoothed, free, tile)
+    lv, sg = fill_missing(lv, level0), fill_missing(sg, sigma0)
+    shape = smoothed.shape
+    return (upsample(lv, shape, tile), upsample(sg, shape, tile),
+            float(np.median(lv)), float(np.median(sg)))
+
+
+def column_offsets(residual: np.ndarray, step: int = 4) -> np.ndarray:
+    """Per column: the median of ``residual`` over every ``step``-th row (float32, (w,)).
+
+    A sensor's column fixed pattern (read-out amplifier offsets) is constant along a column and
+    static on the sensor; the matched smoothing does not average it away (it is correlated
+    along the column), so it inflates the detection map's noise and a bright column segments
+    as a string of points that stand still on the sensor. The median over the rows is blind to
+    the few rows a star or a target covers."""
+    sub = np.ascontiguousarray(residual[::step].T)
+    mid = sub.shape[1] // 2
+    return np.partition(sub, mid, axis=1)[:, mid].astype(np.float32)
+
+
 def segment(image: np.ndarray, cfg: StarSegmentationConfig) -> Segmentation:
-    """Background, matched smoothing, robust threshold and components of one frame."""
+    """Background, column offsets (:func:`column_offsets`, with ``column_offsets``), matched
+    smoothing, threshold in units of the local noise of the smoothed map (:func:`local_noise`;
+    one global robust std with ``noise_tile`` 0) and components of one frame."""
     img = image.astype(np.float32, copy=False)
     residual = img - estimate_background(img, cfg.background_block, cfg.background_sigma)
+    if cfg.column_offsets and residual.shape[0] >= 64:
+        residual -= column_offsets(residual)[None, :]
     smoothed = (cv2.GaussianBlur(residual, (0, 0), cfg.smooth_sigma) if cfg.smooth_sigma > 0
                 else residual)
-    level, sigma = robust_stats(smoothed)
+    level_map = sigma_map = None
+    if cfg.noise_tile > 0:
+        level_map, sigma_map, level, sigma = local_noise(smoothed, cfg.noise_tile, cfg.smooth_sigma)
+        binary = (smoothed > cv2.scaleAdd(sigma_map, float(cfg.k_sigma), level_map)).view(np.uint8)
+    else:
+        level, sigma = robust_stats(smoothed)
+        binary = (smoothed > level + cfg.k_sigma * sigma).view(np.uint8)
     thr = level + cfg.k_sigma * sigma
-    binary = (smoothed > thr).view(np.uint8)
     pts = _components(binary, residual, smoothed, cfg.min_area, cfg.max_area, thr)
-    return Segmentation(pts, residual, smoothed, level, sigma, sharpness(pts, residual) > SHARP_FRACTION)
+    return Segmentation(pts, residual, smoothed, level, sigma, sharpness(pts, residual) > SHARP_FRACTION,
+                        level_map, sigma_map)
 
 
 def sharpness(pts: Detections, residual: np.ndarray) -> np.ndarray:
@@ -181,8 +247,11 @@ def resegment(residual: np.ndarray, sigma: float, x: float, y: float, window: in
     theirs. When given, the box is searched in ``residual`` *minus their mean warped into this
     frame* (bicubic): the stars, still in the sky, cancel; the target, elsewhere in those
     frames, stays. The (difference) box is smoothed like the detection map and thresholded at
-    its own median + ``k_sigma`` robust stds (at most 1.5x the frame's smoothed-map std
-    ``sigma``, scaled for the difference, so a bright neighbour cannot raise it).
+    its own median + ``k_sigma`` * ``sigma``, the detection map's local noise there
+    (:func:`local_noise`, estimated with the sources masked), times sqrt(1 + 1/n) for the
+    difference with the mean of n references. Not the box's own spread: 15 x 15 correlated
+    pixels that hold the target (and perhaps a star's wing) overstate the noise, by 1.2-1.8x
+    on the independent sample S5, which put the "lower" threshold above the frame's.
 
     The target is the local maximum above the threshold nearest (x, y) within ``radius`` px;
     its position is the intensity-weighted centroid of the (difference) residual over the
@@ -211,8 +280,8 @@ def resegment(residual: np.ndarray, sigma: float, x: float, y: float, window: in
     smp = cv2.GaussianBlur(patch, (0, 0), smooth_sigma) if smooth_sigma > 0 else patch
     res = patch[y0 - py0:y1 - py0, x0 - px0:x1 - px0]
     sm = smp[y0 - py0:y1 - py0, x0 - px0:x1 - px0]
-    level, local = robust_stats(sm, 1)
-    thr = level + k_sigma * min(local, 1.5 * expected)
+    level = float(np.median(sm))
+    thr = level + k_sigma * expected
     peaks = (sm > thr) & (sm >= cv2.dilate(sm, np.ones((3, 3), np.uint8)))
     found = None
     ys, xs = np.nonzero(peaks)

@@ -79,11 +79,11 @@ class StarfieldResult(FrameResult):
 
 @dataclass(frozen=True)
 class _Stored:
-    """A past frame kept for re-segmentation: its residual, the detection map's std, its
-    image -> reference map (3x3)."""
+    """A past frame kept for re-segmentation: its residual, its segmentation (for the detection
+    map's local noise), its image -> reference map (3x3)."""
 
     residual: np.ndarray
-    sigma: float
+    seg: Segmentation
     to_ref: np.ndarray
 
 
@@ -208,7 +208,7 @@ class StarfieldTracker:
                 continue
             other = self._stored[f]
             refs.append((other.residual, (np.linalg.inv(other.to_ref) @ st.to_ref)[:2]))
-        r = resegment(st.residual, st.sigma, pu, pv, rc.window, rc.k_sigma, rc.radius, refs,
+        r = resegment(st.residual, st.seg.sigma_at(pu, pv), pu, pv, rc.window, rc.k_sigma, rc.radius, refs,
                       self.config.segmentation.smooth_sigma)
         window = (r.x0, r.y0, r.w, r.h)
         if r.found is not None:
@@ -267,7 +267,7 @@ class StarfieldTracker:
         else:
             cands = Candidates(k, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64))
             status = np.full(len(unpaired), NOT_REGISTERED, np.int64)
-        self._stored[k] = _Stored(seg.residual, seg.sigma, self._to_ref.copy())
+        self._stored[k] = _Stored(seg.residual, seg, self._to_ref.copy())
         for f in [f for f in self._stored if f <= k - self._keep]:
             del self._stored[f]
         lap("candidates")
