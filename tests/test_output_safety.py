@@ -406,3 +406,23 @@ def test_outputs_get_the_usual_permissions(tmp_path: Path) -> None:
     mask = os.umask(0)
     os.umask(mask)
     assert (tmp_path / "t.csv").stat().st_mode & 0o777 == 0o666 & ~mask
+
+
+def test_a_frame_that_is_a_symlink_protects_its_target(tmp_path: Path) -> None:
+    real = write_folder(tmp_path / "real", {f"f{i}.png": noise() for i in range(4)})
+    links = tmp_path / "links"
+    links.mkdir()
+    for i in range(4):
+        (links / f"l{i}.png").symlink_to(real / f"f{i}.png")
+    before = digest(real)
+    r = invoke("track", str(links), "--tracks", str(real / "f2.png"))
+    assert r.exit_code == 2 and "frame 2 of the input clip" in r.output, r.output
+    assert digest(real) == before
+
+
+def test_a_hard_link_to_the_truth_is_refused(tmp_path: Path) -> None:
+    np.save(tmp_path / "c.npy", noise(shape=(4, H, W)))
+    truth = _truth(tmp_path / "truth.csv")
+    os.link(truth, tmp_path / "other.csv")
+    r = invoke("track", str(tmp_path / "c.npy"), "--truth", str(truth), "--tracks", str(tmp_path / "other.csv"))
+    assert r.exit_code == 2 and "the truth file" in r.output and truth.read_text().startswith("frame")

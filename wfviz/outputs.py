@@ -98,23 +98,45 @@ def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path
     """Refuse (``OutputError``) an output that would replace an input of the command (``inputs``:
     (path, what it is), e.g. a clip frame, the truth, config or recording file; symlinks and hard
     links resolved), or any file already in an input image folder, or an image file there (it
-    would join the clip), or that names the same file as another output."""
+    would join the clip), or that names the same file as another output.
+
+    Cost: a few system calls per output, plus one per input only for an output that resolves
+    into an input folder or replaces an existing file."""
     ins = [(Path(p), what) for p, what in inputs]
-    folders = [Path(f).resolve() for f in input_folders]
+    folders = {Path(f).resolve() for f in input_folders}
+    parents: dict[Path, Path] = {}
+    for p, _ in ins:
+        if p.parent not in parents:
+            parents[p.parent] = p.parent.resolve()
+    loose = [(p, what) for p, what in ins if parents[p.parent] not in folders]  # truth, config, ...
     seen: list[Path] = []
     for out in outputs:
         if out is None:
             continue
         out = Path(out)
-        for p, what in ins:
+        target = out.resolve()
+        for p, what in loose:
             if same_file(out, p):
                 raise OutputError(f"{out}: output would overwrite {what}")
-        target = out.resolve()
-        if target.parent in folders and (target.exists() or target.suffix.lower() in _IMAGE_SUFFIXES):
-            raise OutputError(f"{out}: output would overwrite or join the frames of the input folder "
-                              f"{target.parent}")
+        if target.parent in folders:
+            for p, what in ins:  # name the input it would replace, if it is one
+                if p.resolve() == target:
+                    raise OutputError(f"{out}: output would overwrite {what}")
+            if target.exists() or target.suffix.lower() in _IMAGE_SUFFIXES:
+                raise OutputError(f"{out}: output would overwrite or join the frames of the input folder "
+                                  f"{target.parent}")
+        elif target.is_file():  # replacing a file: is it an input under another name (a frame
+            # that is a symlink to it, a hard link)? one stat per input, only in this case
+            key = (target.stat().st_dev, target.stat().st_ino)
+            for p, what in ins:
+                try:
+                    st = p.stat()
+                except OSError:
+                    continue
+                if (st.st_dev, st.st_ino) == key:
+                    raise OutputError(f"{out}: output would overwrite {what}")
         for other in seen:
-            if same_file(out, other) or out.resolve() == other.resolve():
+            if same_file(out, other) or target == other.resolve():
                 raise OutputError(f"{out}: two outputs of this command have the same name")
         seen.append(out)
 
