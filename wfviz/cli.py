@@ -20,7 +20,7 @@ from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, T
 from wfviz.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
 from wfviz.config import ConfigError, config_to_toml
 from wfviz.frames import Clip
-from wfviz.outputs import OutputError, check_not_inputs, check_writable, remove_stale, temp_path
+from wfviz.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
@@ -317,7 +317,7 @@ def demo(
     temp = temp_path(truth)
     try:
         clip.write_truth_csv(temp)
-        os.replace(temp, truth)
+        replace_into(temp, truth)
     finally:
         temp.unlink(missing_ok=True)
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,

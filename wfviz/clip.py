@@ -222,7 +222,7 @@ class ImageFolderClip(_ClipBase):
                  nan_as_zero: bool = False, name: str | None = None) -> None:
         visible = sorted((p for p in folder.iterdir() if not p.name.startswith(".")),
                          key=lambda p: p.name)
-        files = [p for p in visible if p.is_file() and p.suffix.lower() in IMAGE_SUFFIXES]
+        files = [p for p in visible if _is_image(p)]
         if not files:
             raise ClipError(f"{folder}: no images ({' '.join(IMAGE_SUFFIXES)}) in folder")
         others = [p.name for p in visible if p not in files and p.name not in COMPANION_FILES]

@@ -11,6 +11,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TextIO
 
+from wfviz.clip import IMAGE_SUFFIXES
 from wfviz.tracking import TrackState
 
 TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]
@@ -122,7 +123,7 @@ def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path
             for p, what in ins:  # name the input it would replace, if it is one
                 if p.resolve() == target:
                     raise OutputError(f"{out}: output would overwrite {what}")
-            if target.exists() or target.suffix.lower() in _IMAGE_SUFFIXES:
+            if target.exists() or target.suffix.lower() in IMAGE_SUFFIXES:
                 raise OutputError(f"{out}: output would overwrite or join the frames of the input folder "
                                   f"{target.parent}")
         elif target.is_file():  # replacing a file: is it an input under another name (a frame
@@ -141,23 +142,29 @@ def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path
         seen.append(out)
 
 
-_IMAGE_SUFFIXES = (".bmp", ".png", ".tif", ".tiff")
+def replace_into(temp: Path, path: Path) -> None:
+    """Rename the finished temporary file ``temp`` to ``path`` (atomic, replacing an older
+    file); an OSError becomes a one-line OutputError naming ``path``."""
+    try:
+        os.replace(temp, path)
+    except OSError as exc:
+        raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def write_atomically(path: Path, data: bytes | str) -> None:
     """Write ``data`` to ``path`` through a unique temporary file (removed on any error)."""
     tmp = temp_path(path)
     try:
-        if isinstance(data, str):
-            tmp.write_text(data, encoding="utf-8")
-        else:
-            tmp.write_bytes(data)
-        os.replace(tmp, path)
-    except BaseException as exc:
-        tmp.unlink(missing_ok=True)
-        if isinstance(exc, OSError) and not isinstance(exc, OutputError):
+        try:
+            if isinstance(data, str):
+                tmp.write_text(data, encoding="utf-8")
+            else:
+                tmp.write_bytes(data)
+        except OSError as exc:
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
-        raise
+        replace_into(tmp, path)
+    finally:
+        tmp.unlink(missing_ok=True)
 
 
 def check_writable(path: Path) -> None:
@@ -213,9 +220,9 @@ class TracksWriter:
         """Flush, close and rename into place."""
         try:
             self._fh.close()
-            os.replace(self.temp, self.path)
         except OSError as exc:
             raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        replace_into(self.temp, self.path)
 
     def abort(self) -> None:
         """Close and remove the partial file."""

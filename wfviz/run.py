@@ -15,7 +15,7 @@ from typing import Any
 from wfviz.clip import MIN_SIDE, check_frame_size
 from wfviz.evaluate import EvalResult, Points, evaluate_points, frame_errors
 from wfviz.frames import Clip, Frame, read_ahead
-from wfviz.outputs import OutputError, TracksWriter, check_writable, temp_path
+from wfviz.outputs import OutputError, TracksWriter, check_writable, replace_into, temp_path
 from wfviz.trackers import Tracker
 from wfviz.trackers.base import FrameResult
 
@@ -183,7 +183,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
                     recorder.log_message(f"interrupted by {name} after {frames} frames", level="WARN")
                 with _recording_errors(recording):
                     recorder.close()
-                _replace(rec_temp, recording)  # type: ignore[arg-type]
+                replace_into(rec_temp, recording)  # type: ignore[arg-type]
         except BaseException:
             _abort(writer, None, rec_temp)
             raise
@@ -219,15 +219,6 @@ def _recording_errors(recording: Path | None) -> Iterator[None]:
         yield
     except RuntimeError as exc:
         raise OutputError(f"{recording}: cannot write the recording ({exc}; is the disk full?)") from None
-
-
-def _replace(temp: Path, path: Path) -> None:
-    import os
-
-    try:
-        os.replace(temp, path)
-    except OSError as exc:
-        raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
 
 
 def _abort(writer: TracksWriter | None, recorder: Any, rec_temp: Path | None) -> None:

@@ -60,10 +60,15 @@ class Segmentation:
 
     def sigma_at(self, x: float, y: float) -> float:
         """The detection map's local noise at image position (x, y)."""
-        if self.sigma_map is None:
-            return self.sigma
-        h, w = self.sigma_map.shape
-        return float(self.sigma_map[min(max(int(round(y)), 0), h - 1), min(max(int(round(x)), 0), w - 1)])
+        return noise_at(self.sigma_map, self.sigma, x, y)
+
+
+def noise_at(sigma_map: np.ndarray | None, sigma: float, x: float, y: float) -> float:
+    """``sigma_map`` at image position (x, y), clamped to the frame (``sigma`` without a map)."""
+    if sigma_map is None:
+        return sigma
+    h, w = sigma_map.shape
+    return float(sigma_map[min(max(int(round(y)), 0), h - 1), min(max(int(round(x)), 0), w - 1)])
 
 
 @dataclass(frozen=True)

@@ -44,6 +44,8 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
+from wfviz.noise import upsample
+
 _MAD = 1.4826
 
 
@@ -59,15 +61,20 @@ class NoiseFrame:
     excluded: np.ndarray
 
 
-def tile_sigma(d: np.ndarray, tile: int) -> np.ndarray:
-    """(ny, nx) robust std (1.4826 MAD about the median) of ``d`` over ``tile`` x ``tile``
-    tiles; the last row/column of tiles is padded by reflection."""
+def _blocks(d: np.ndarray, tile: int) -> np.ndarray:
+    """(ny, nx, tile * tile): the pixels of each ``tile`` x ``tile`` tile of ``d`` (the last
+    row/column of tiles padded by reflection)."""
     rows, cols = d.shape
     ny, nx = -(-rows // tile), -(-cols // tile)
     pr, pc = ny * tile - rows, nx * tile - cols
     if pr or pc:
         d = np.pad(d, ((0, pr), (0, pc)), mode="reflect")
-    blocks = d.reshape(ny, tile, nx, tile).transpose(0, 2, 1, 3).reshape(ny, nx, tile * tile)
+    return d.reshape(ny, tile, nx, tile).transpose(0, 2, 1, 3).reshape(ny, nx, tile * tile)
+
+
+def tile_sigma(d: np.ndarray, tile: int) -> np.ndarray:
+    """(ny, nx) robust std (1.4826 MAD about the median) of ``d`` over ``tile`` x ``tile`` tiles."""
+    blocks = _blocks(d, tile)
     med = np.median(blocks, axis=-1, keepdims=True)
     return _MAD * np.median(np.abs(blocks - med), axis=-1)
 
@@ -87,12 +94,8 @@ class PixelBackground:
         self.frames = 0
 
     def _upsample(self, grid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """Tile grid -> pixels, bilinear between tile centres."""
-        grid = grid.astype(np.float32, copy=False)
-        if grid.shape == (1, 1):
-            return np.full(shape, float(grid[0, 0]), dtype=np.float32)
-        big = cv2.resize(grid, (grid.shape[1] * self.tile, grid.shape[0] * self.tile), interpolation=cv2.INTER_LINEAR)
-        return np.ascontiguousarray(big[: shape[0], : shape[1]])
+        """Tile grid -> pixels, bilinear between tile centres (:func:`wfviz.noise.upsample`)."""
+        return np.ascontiguousarray(upsample(grid, shape, self.tile))
 
     @staticmethod
     def _coarse(grid: np.ndarray) -> np.ndarray:
@@ -106,12 +109,7 @@ class PixelBackground:
 
     def _smooth(self, b: np.ndarray) -> np.ndarray:
         """b_s: the tile medians of ``b``, upsampled."""
-        rows, cols = b.shape
-        ny, nx = -(-rows // self.tile), -(-cols // self.tile)
-        pr, pc = ny * self.tile - rows, nx * self.tile - cols
-        p = np.pad(b, ((0, pr), (0, pc)), mode="reflect") if pr or pc else b
-        med = np.median(p.reshape(ny, self.tile, nx, self.tile).transpose(0, 2, 1, 3).reshape(ny, nx, -1), axis=-1)
-        return self._upsample(med, b.shape)
+        return self._upsample(np.median(_blocks(b, self.tile), axis=-1), b.shape)
 
     def step(self, image: np.ndarray, hold: np.ndarray | None = None) -> NoiseFrame:
         """Normalise ``image`` with the model of the previous frames, then update the model

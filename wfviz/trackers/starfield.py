@@ -23,7 +23,7 @@ from wfviz.frames import Frame
 from wfviz.starfield.chains import (NEW, OUT, PREDICTED, RUN, STAR_LATER, Candidates, Chain, ChainManager,
                                     Found, Redetection)
 from wfviz.starfield.registration import Registration, apply, register
-from wfviz.starfield.segmentation import Segmentation, resegment, segment
+from wfviz.starfield.segmentation import Segmentation, noise_at, resegment, segment
 from wfviz.trackers.base import FrameResult, StageTimer
 from wfviz.tracking import Prediction, TrackState
 
@@ -79,11 +79,12 @@ class StarfieldResult(FrameResult):
 
 @dataclass(frozen=True)
 class _Stored:
-    """A past frame kept for re-segmentation: its residual, its segmentation (for the detection
-    map's local noise), its image -> reference map (3x3)."""
+    """A past frame kept for re-segmentation: its residual, the detection map's noise (median,
+    and per pixel when estimated locally), its image -> reference map (3x3)."""
 
     residual: np.ndarray
-    seg: Segmentation
+    sigma: float
+    sigma_map: np.ndarray | None
     to_ref: np.ndarray
 
 
@@ -208,7 +209,7 @@ class StarfieldTracker:
                 continue
             other = self._stored[f]
             refs.append((other.residual, (np.linalg.inv(other.to_ref) @ st.to_ref)[:2]))
-        r = resegment(st.residual, st.seg.sigma_at(pu, pv), pu, pv, rc.window, rc.k_sigma, rc.radius, refs,
+        r = resegment(st.residual, noise_at(st.sigma_map, st.sigma, pu, pv), pu, pv, rc.window, rc.k_sigma, rc.radius, refs,
                       self.config.segmentation.smooth_sigma)
         window = (r.x0, r.y0, r.w, r.h)
         if r.found is not None:
@@ -267,7 +268,7 @@ class StarfieldTracker:
         else:
             cands = Candidates(k, np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, np.int64))
             status = np.full(len(unpaired), NOT_REGISTERED, np.int64)
-        self._stored[k] = _Stored(seg.residual, seg, self._to_ref.copy())
+        self._stored[k] = _Stored(seg.residual, seg.sigma, seg.sigma_map, self._to_ref.copy())
         for f in [f for f in self._stored if f <= k - self._keep]:
             del self._stored[f]
         lap("candidates")
