@@ -27,6 +27,10 @@ import cv2
 import numpy as np
 
 
+FLOW_WINDOW = 15  # px, side of the Lucas-Kanade window (at the flow's downsampled scale)
+FLOW_LEVELS = 3   # pyramid levels above the base
+
+
 @dataclass(frozen=True)
 class CameraState:
     """``offset``: a scene point of the first frame appears at ``xy + offset`` now; ``shift``:
@@ -87,9 +91,9 @@ class CameraMotion:
         g = self._grey(image)
         agreed = 0
         if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
-            win = (15, 15)
-            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._key, g, self._key_pts, None, winSize=win, maxLevel=3)
-            p0, st2, _ = cv2.calcOpticalFlowPyrLK(g, self._key, p1, None, winSize=win, maxLevel=3)
+            win = (FLOW_WINDOW, FLOW_WINDOW)
+            p1, st, _ = cv2.calcOpticalFlowPyrLK(self._key, g, self._key_pts, None, winSize=win, maxLevel=FLOW_LEVELS)
+            p0, st2, _ = cv2.calcOpticalFlowPyrLK(g, self._key, p1, None, winSize=win, maxLevel=FLOW_LEVELS)
             back = np.hypot(*(p0 - self._key_pts)[:, 0].T)
             ok = (st[:, 0] == 1) & (st2[:, 0] == 1) & (back < self.fb_error)
             d = (p1 - self._key_pts)[:, 0][ok].astype(np.float64)
