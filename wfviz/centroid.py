@@ -43,40 +43,10 @@ def gradient_magnitude(patch: np.ndarray) -> np.ndarray:
     return np.hypot(gx, gy)
 
 
-def _entropy_centroid(grad: np.ndarray, cx: float, cy: float, bins: int) -> CentroidResult | None:
-    """One GEWC evaluation with the 8 direction regions centred on (cx, cy)."""
-    gmax = grad.max()
-    if gmax <= 0:
-        return None
-    ys, xs = np.nonzero(grad > gmax * 1e-9)
-    g = grad[ys, xs]
-    # eq. 4 needs equal gradient values: quantise |∇f| into `bins` levels
-    level = np.minimum((g / gmax * bins).astype(np.int64), bins - 1)
-    angle = np.arctan2(ys - cy, xs - cx)
-    region = ((angle + np.pi) / (2 * np.pi / N_REGIONS)).astype(np.int64) % N_REGIONS
-    cell = region * bins + level
-    size = N_REGIONS * bins
-    k = np.bincount(cell, minlength=size).reshape(N_REGIONS, bins).astype(np.float64)
-    sx = np.bincount(cell, weights=xs, minlength=size).reshape(N_REGIONS, bins)
-    sy = np.bincount(cell, weights=ys, minlength=size).reshape(N_REGIONS, bins)
-    n_r = k.sum(axis=1, keepdims=True)
-    q = np.divide(k, n_r, out=np.zeros_like(k), where=n_r > 0)              # eq. 4
-    mx = np.divide(sx, k, out=np.zeros_like(sx), where=k > 0)               # eq. 5
-    my = np.divide(sy, k, out=np.zeros_like(sy), where=k > 0)
-    region_x, region_y = (q * mx).sum(axis=1), (q * my).sum(axis=1)         # Σ_g q_g M_g
-    logq = np.log2(q, out=np.zeros_like(q), where=q > 0)
-    entropy = -(q * logq).sum(axis=1)                                       # eq. 6
-    present = n_r[:, 0] > 0
-    if entropy.sum() > 0:
-        w = entropy / entropy.sum()
-    else:  # every region holds a single gradient level: weigh the occupied regions equally
-        w = present / present.sum()
-    return CentroidResult(float((w * region_x).sum()), float((w * region_y).sum()), w)   # eq. 7
-
-
 def gewc_centroid(patch: np.ndarray, bins: int = 32, iterations: int = 2,
                   start: tuple[float, float] | None = None) -> CentroidResult | None:
-    """Gradient-entropy-weighted centroid (eqs. 4-7) of a background-free patch.
+    """Gradient-entropy-weighted centroid (Zhang Shuai et al. 2018, eqs. 4-7) of a
+    background-free patch: :func:`gewc_centroids` on one patch.
 
     The patch's non-zero-gradient pixels are split into 8 direction regions (octants) around
     a centre, first ``start`` (default: the patch centre), then the previous estimate
@@ -84,22 +54,17 @@ def gewc_centroid(patch: np.ndarray, bins: int = 32, iterations: int = 2,
     (eq. 4), M_g their mean position (eq. 5), E_r the entropy of q and W_r = E_r / ΣE (eq. 6);
     the centroid is Σ_r W_r Σ_g q_g M_g (eq. 7).
     """
-    grad = gradient_magnitude(patch)
-    h, w = patch.shape
-    cx, cy = start if start is not None else ((w - 1) / 2.0, (h - 1) / 2.0)
-    result = None
-    for _ in range(max(1, iterations)):
-        step = _entropy_centroid(grad, cx, cy, bins)
-        if step is None:
-            return result
-        result = step
-        cx, cy = step.x, step.y
-    return result
+    starts = None if start is None else np.asarray([start], dtype=np.float64)
+    return gewc_centroids(np.asarray(patch)[None], bins, iterations, starts)[0]
 
 
-def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2) -> list[CentroidResult | None]:
+def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2,
+                   starts: np.ndarray | None = None) -> list[CentroidResult | None]:
     """:func:`gewc_centroid` (eqs. 4-7) of a stack of equal-sized patches (N, h, w) at once,
-    each started from its patch centre; the same numbers as one call per patch."""
+    each started from ``starts`` (N, 2) (x, y), default its patch centre; the one
+    implementation of the equations (|∇f| quantised into ``bins`` levels, as eq. 4 needs equal
+    gradient values; a patch whose regions each hold one level weighs its occupied regions
+    equally)."""
     n, h, w = patches.shape
     if n == 0:
         return []
@@ -111,8 +76,10 @@ def gewc_centroids(patches: np.ndarray, bins: int = 32, iterations: int = 2) -> 
     g = grad[pn, ys, xs]
     level = np.minimum((g / gmax[pn] * bins).astype(np.int64), bins - 1)
     size = N_REGIONS * bins
-    cx = np.full(n, (w - 1) / 2.0)
-    cy = np.full(n, (h - 1) / 2.0)
+    if starts is None:
+        cx, cy = np.full(n, (w - 1) / 2.0), np.full(n, (h - 1) / 2.0)
+    else:
+        cx, cy = (np.asarray(starts, dtype=np.float64)[:, i].copy() for i in (0, 1))
     ok = alive.copy()
     weights = np.zeros((n, N_REGIONS))
     for _ in range(max(1, iterations)):

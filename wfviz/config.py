@@ -252,7 +252,7 @@ class FusionMatchConfig:
 
 @dataclass(frozen=True)
 class FusionConfig:
-    """All stages of the feature-fusion Kalman tracker (METHODS.md section 2)."""
+    """All stages of the feature-fusion Kalman tracker (Zheng Jia, Li Jiangyong and Chen Gang)."""
 
     defects: DefectsConfig = DefectsConfig()
     circle: CircleConfig = CircleConfig()
@@ -366,7 +366,7 @@ class StarTrackingConfig:
 
 @dataclass(frozen=True)
 class StarfieldConfig:
-    """All stages of the star-field tracker (METHODS.md section 3)."""
+    """All stages of the star-field tracker (Gao Jianwei et al. 2012)."""
 
     segmentation: StarSegmentationConfig = StarSegmentationConfig()
     registration: RegistrationConfig = RegistrationConfig()
@@ -468,7 +468,8 @@ class TBDTrackingConfig:
 
 @dataclass(frozen=True)
 class TBDConfig:
-    """All stages of the multi-target particle-filter track-before-detect tracker (METHODS.md section 4)."""
+    """All stages of the multi-target particle-filter track-before-detect tracker (Wang Hongbo and
+    Wang Zhongwei)."""
 
     model: TBDModelConfig = TBDModelConfig()
     filter: TBDFilterConfig = TBDFilterConfig()

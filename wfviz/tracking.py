@@ -70,7 +70,7 @@ def gone_reason(manager: "TrackManager", i: int, xy: np.ndarray) -> str:
 
 
 def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float, float]:
-    """Eq. 15 as read in METHODS.md: s(k) = s(k-1) + (s(k-1) - s(k-3)) / 2."""
+    """Eq. 15 (Zhang Shuai et al. 2018) as we read it: s(k) = s(k-1) + (s(k-1) - s(k-3)) / 2."""
     s1, s3 = np.asarray(history[-1]), np.asarray(history[-3])
     s = s1 + (s1 - s3) / 2.0
     return float(s[0]), float(s[1])

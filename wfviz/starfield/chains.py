@@ -1,4 +1,4 @@
-"""Target chains over registered frames (METHODS.md §3, the paper's §3.2-3.3).
+"""Target chains over registered frames (Gao Jianwei et al. 2012, §3.2-3.3).
 
 Coordinates: chains live in the *reference frame* (the first frame processed), where the
 stars stand still and a target moves uniformly; every point also keeps its image position

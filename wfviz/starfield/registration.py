@@ -1,4 +1,4 @@
-"""Frame-to-frame star pairing and registration (METHODS.md §3).
+"""Frame-to-frame star pairing and registration (Gao Jianwei et al. 2012).
 
 The paper pairs the stars of frames k and k+1 through two reference stars S, P present in
 both: a point T of frame k and a point I of frame k+1 are the same star when

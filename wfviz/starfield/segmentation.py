@@ -1,4 +1,4 @@
-"""Star-field segmentation (METHODS.md §3, "segment, label connected components").
+"""Star-field segmentation (Gao Jianwei et al. 2012: "segment, label connected components").
 
 Per frame: a smooth background (coarse block medians, stars clipped, Gaussian-blurred on a
 downsampled grid) is subtracted; the residual is smoothed with a Gaussian of the PSF's size

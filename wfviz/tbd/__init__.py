@@ -1,4 +1,4 @@
-"""Multi-target particle-filter track-before-detect (METHODS.md section 4): the measurement
+"""Multi-target particle-filter track-before-detect (Wang Hongbo and Wang Zhongwei): the measurement
 model (:mod:`wfviz.tbd.model`) and the bank of per-hypothesis particle filters over one region
 (:mod:`wfviz.tbd.filter`). The tracker composing them is :mod:`wfviz.trackers.tbd`."""
 

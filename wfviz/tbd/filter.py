@@ -1,4 +1,4 @@
-"""Multi-target particle-filter track-before-detect over one region (METHODS.md section 4).
+"""Multi-target particle-filter track-before-detect over one region (Wang Hongbo and Wang Zhongwei).
 
 One particle filter PF_n per hypothesis n = 0..N_max targets. Each PF_n is made, every frame,
 of three particle sets: *birth* (from PF_n-1 at k-1, plus one new target), *continuation*

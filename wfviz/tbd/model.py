@@ -1,4 +1,4 @@
-"""Measurement model of the track-before-detect filter (METHODS.md section 4).
+"""Measurement model of the track-before-detect filter (Wang Hongbo and Wang Zhongwei).
 
 A frame is normalised to y = (z - b) / sigma, so the noise is N(0, 1) and a target's amplitude
 A is its peak SNR. A target at (r, c) (row, column; x = c, y = r; origin at the centre of the

@@ -1,4 +1,4 @@
-"""Feature-fusion Kalman tracker (METHODS.md §2, Zheng Jia et al.): global multi-target
+"""Feature-fusion Kalman tracker (Zheng Jia, Li Jiangyong and Chen Gang): global multi-target
 detection, per-target features (centre of the bounding rectangle, area, grey sum) fused into one
 matching cost, constant-velocity Kalman search windows, and global re-detection whenever a
 confirmed track's window holds no candidate.

@@ -1,5 +1,5 @@
 """The star-field tracker (``--tracker starfield``): dim moving targets among stars in
-telescope frames whose background jitters (Gao Jianwei et al. 2012, METHODS.md §3).
+telescope frames whose background jitters (Gao Jianwei et al. 2012).
 
 Per frame: segmentation into star points (:mod:`wfviz.starfield.segmentation`), pairing with
 the previous frame's points and registration (:mod:`wfviz.starfield.registration`), candidate
