@@ -188,7 +188,7 @@ def test_target_leaving_its_window_triggers_global_detection_and_the_track_recov
     r = results[30]
     assert r.global_detection and str(before.track_id) in r.global_reason
     kinds = {(e.kind, e.track_id) for e in r.events}
-    assert ("redetect", before.track_id) in kinds and ("recovered", before.track_id) in kinds
+    assert ("window_lost", before.track_id) in kinds and ("recovered", before.track_id) in kinds
     assert ("deleted", before.track_id) not in kinds  # a recovered track lives on
     m = next(m for m in r.matches if m.track_id == before.track_id)
     assert m.recovered and np.hypot(m.x - truth[30][0][0], m.y - truth[30][0][1]) < 1.5

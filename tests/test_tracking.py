@@ -457,3 +457,22 @@ def test_gate_threshold_is_at_most_k_and_falls_with_p_gate():
     assert below.any()
     assert np.allclose(area[below] * norm.sf(t[below]), 0.05)
     assert np.allclose(track_score.gate_threshold(half, 1e-9, k), k)  # clipped to k
+
+
+def test_every_event_of_every_tracker_has_a_declared_kind():
+    """Events carry an EventKind, whose value is the string recordings show (one name per
+    meaning: fusion's lost window and the star field's re-segmentation are told apart)."""
+    from wfviz.synth.scenarios import make_scenario
+    from wfviz.tracking import EventKind
+    from wfviz.trackers import make_tracker
+
+    seen = set()
+    for name, scenario in (("gewc", "fov70-four-targets"), ("fusion", "uniform-50hz"),
+                           ("starfield", "starfield"), ("tbd", "lowsnr-tbd")):
+        tracker = make_tracker(name)
+        for frame in make_scenario(scenario).frames(0, 30):
+            for e in tracker.step(frame).events:
+                assert isinstance(e.kind, EventKind), (name, e.kind)
+                seen.add(e.kind)
+    assert {EventKind.BORN, EventKind.CONFIRMED, EventKind.DELETED, EventKind.COUNT} <= seen
+    assert len({k.value for k in EventKind}) == len(EventKind)

@@ -13,6 +13,7 @@ by noise every frame.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from enum import StrEnum
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
@@ -50,12 +51,32 @@ class Prediction:
     cov_trace: float
 
 
+class EventKind(StrEnum):
+    """What can happen to a track; the value is the string recordings and logs show."""
+
+    BORN = "born"                # a tentative track started (a New chain: star field)
+    CONFIRMED = "confirmed"      # passed its confirmation test
+    DELETED = "deleted"          # ended (dropped, lost, left the image)
+    MEETING_ON = "meeting_on"    # GEWC eq. 15: two tracks within the safety distance
+    MEETING_OFF = "meeting_off"  # the meeting ended, filter re-initialised
+    REACQUIRED = "reacquired"    # a lost track took over a new detection near its path
+    WINDOW_LOST = "window_lost"  # fusion: no candidate in its search window, global detection reruns
+    RECOVERED = "recovered"      # fusion: found again by that global detection
+    COUNT = "count"              # tbd: the most probable number of targets changed (track_id -1)
+    REJOINED = "rejoined"        # star field: a new three-frame chain continues a Run chain
+    EXITED = "exited"            # star field: the chain's prediction left the field
+    REDETECTED = "redetected"    # star field: found by local re-segmentation
+    PROMOTED = "promoted"        # star field: New -> Run
+    ABSORBED = "absorbed"        # star field: took over the points of a dropped New chain
+
+
 @dataclass(frozen=True)
 class TrackEvent:
-    """Something that happened to a track: born, confirmed, deleted, meeting_on, meeting_off."""
+    """Something that happened to a track (``kind``: :class:`EventKind`) in ``frame``;
+    ``track_id`` -1 for an event of the whole frame."""
 
     frame: int
-    kind: str
+    kind: EventKind
     track_id: int
     message: str
 
@@ -271,7 +292,7 @@ class TrackManager:
             if close[i] and not self.meeting[i] and self.history_len[i] >= 3 and self.meet_again[i]:
                 self.meeting[i], self.meeting_frames[i] = True, 0
                 self.x[i] = self._meeting_state(i)
-                self._event("meeting_on", i, "within the safety distance: Kalman updates stop, "
+                self._event(EventKind.MEETING_ON, i, "within the safety distance: Kalman updates stop, "
                                              "linear extrapolation (eq. 15)")
             elif self.meeting[i]:
                 self.meeting_frames[i] += 1
@@ -281,7 +302,7 @@ class TrackManager:
                     self.meet_again[i] = False  # until its next measurement
                     self.P[i] = self.P0  # re-initialise the filter at the extrapolated state
                     why = "meeting lasted too long" if expired else "separated"
-                    self._event("meeting_off", i, f"{why}: filter re-initialised")
+                    self._event(EventKind.MEETING_OFF, i, f"{why}: filter re-initialised")
 
     def _arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:
         """(centres, half sizes, confirmed, meeting) of ``preds`` (cached for predict's own)."""
@@ -353,7 +374,7 @@ class TrackManager:
                 continue
             out[i] = j
             self.restart(int(self.ids[i]), np.concatenate([xy[j], self.x[i, 2:]]))
-            self._event("reacquired", i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
+            self._event(EventKind.REACQUIRED, i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
                                          f"{d[r, k]:.1f} px from its prediction (nothing in its gate)")
         return out
 
@@ -438,14 +459,14 @@ class TrackManager:
         gone = self._gone(measured, reported) & ~delete
         for i in np.nonzero(confirm | delete | gone)[0].tolist():
             if gone[i]:
-                self._event("deleted", i, f"deleted: {gone_reason(self, i, reported[i])} "
+                self._event(EventKind.DELETED, i, f"deleted: {gone_reason(self, i, reported[i])} "
                                           f"({'confirmed' if self.confirmed[i] else 'tentative'}, "
                                           f"{self.hits[i]} hits)")
             elif confirm[i]:
                 self.confirmed[i] = True
-                self._event("confirmed", i, f"confirmed after {self.hits[i]} hits{why[i]}")
+                self._event(EventKind.CONFIRMED, i, f"confirmed after {self.hits[i]} hits{why[i]}")
             else:
-                self._event("deleted", i, why[i] or (
+                self._event(EventKind.DELETED, i, why[i] or (
                     f"deleted after {self.misses[i]} consecutive misses "
                     f"({'confirmed' if self.confirmed[i] else 'tentative'}, {self.hits[i]} hits)"))
         delete |= gone
@@ -652,7 +673,7 @@ class TrackManager:
         if birth_clutter is not None:
             self._add_clutter(np.arange(len(self) - k, len(self)), np.asarray(birth_clutter, dtype=np.float64))
         for (bx, by), tid in zip(births.tolist(), new["ids"].tolist()):
-            self._events.append(TrackEvent(self._frame, "born", tid,
+            self._events.append(TrackEvent(self._frame, EventKind.BORN, tid,
                                            f"track {tid} tentative track started at ({bx:.1f}, {by:.1f})"))
 
     def states(self) -> list[TrackState]:
@@ -669,6 +690,6 @@ class TrackManager:
         rows = np.nonzero(~np.isnan(self.innovation[:, 0]))[0]
         return {int(self.ids[i]): self.innovation[i].copy() for i in rows}
 
-    def _event(self, kind: str, i: int, message: str) -> None:
+    def _event(self, kind: EventKind, i: int, message: str) -> None:
         tid = int(self.ids[i])
         self._events.append(TrackEvent(self._frame, kind, tid, f"track {tid} {message}"))

@@ -8,6 +8,7 @@ import rerun.blueprint as rrb
 
 from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, log_geometry, track_color, track_colors
 from wfviz.trackers.fusion import FusionResult
+from wfviz.tracking import EventKind
 
 LOST_COLOR = (255, 80, 80, 200)
 
@@ -59,7 +60,7 @@ class FusionRecorder(Recorder):
             [np.column_stack([p.x + r * np.cos(a), p.y + r * np.sin(a)]) for p in lost],
             class_ids=class_ids([p.track_id for p in lost]), colors=LOST_COLOR, radii=0.4))
         self.scalar("detection/global", 1.0 if result.global_detection else 0.0)
-        if result.global_detection and not any(e.kind == "redetect" for e in result.events):
+        if result.global_detection and not any(e.kind == EventKind.WINDOW_LOST for e in result.events):
             self.text(f"global detection ({result.global_reason}): "
                       f"{len(result.detections)} candidates", level="DEBUG")
         confirmed = {t.track_id for t in result.tracks if t.confirmed}

@@ -19,6 +19,7 @@ from wfviz.evaluate import FrameErrors
 from wfviz.frames import Frame
 from wfviz.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult
+from wfviz.tracking import EventKind
 
 APPLICATION_ID = "wfviz"
 TENTATIVE_COLOR = (150, 150, 150, 90)
@@ -418,7 +419,7 @@ class Recorder:
         confirmed = {t.track_id for t in result.tracks if t.confirmed} | self._labelled
         for e in result.events:
             level = EVENT_LEVELS.get(e.kind, "INFO")
-            if e.kind == "deleted" and e.track_id not in confirmed:
+            if e.kind == EventKind.DELETED and e.track_id not in confirmed:
                 level = "DEBUG"
             self.text(e.message, level)
 

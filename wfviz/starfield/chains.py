@@ -49,7 +49,7 @@ from scipy.spatial import cKDTree
 
 from wfviz import kalman
 from wfviz.config import ChainConfig, StarKalmanConfig, StarTrackingConfig
-from wfviz.tracking import TrackEvent
+from wfviz.tracking import EventKind, TrackEvent
 
 DETECTED, REDETECTED, PREDICTED = "detected", "redetected", "predicted"
 NEW, RUN, OUT, LOST = "new", "run", "out", "lost"
@@ -179,7 +179,7 @@ class ChainManager:
         """Every chain that reached Run (Run, Out, lost), with all its points."""
         return sorted(self.run + self.out + self.lost, key=lambda c: c.chain_id)
 
-    def _event(self, kind: str, chain: Chain, message: str) -> None:
+    def _event(self, kind: EventKind, chain: Chain, message: str) -> None:
         self._events.append(TrackEvent(self._frame, kind, chain.chain_id, f"track {chain.chain_id} {message}"))
 
     @staticmethod
@@ -300,7 +300,7 @@ class ChainManager:
                         cs.owner[i] = ch.chain_id
                 take(ch, C, c)
                 has_k.add(ch.chain_id)
-                self._event("rejoined", ch, f"rejoined by a new three-frame chain within {cfg.dis:g} px "
+                self._event(EventKind.REJOINED, ch, f"rejoined by a new three-frame chain within {cfg.dis:g} px "
                                             f"and {cfg.theta:g} deg of its prediction")
                 break
         # 4. re-detection
@@ -329,7 +329,7 @@ class ChainManager:
             for cs, i in ((A, a), (B, b), (C, c)):
                 take(ch, cs, i)
             self.new.append(ch)
-            self._event("born", ch, f"New chain from a three-frame triple ending at "
+            self._event(EventKind.BORN, ch, f"New chain from a three-frame triple ending at "
                                     f"({C.uv[c, 0]:.1f}, {C.uv[c, 1]:.1f})")
         # 7. Kalman update of the Run chains detected in this frame
         meas = [c for c in self.run if c.last.kind != PREDICTED]
@@ -351,7 +351,7 @@ class ChainManager:
             else:
                 ch.status = LOST
                 self.dropped[ch.chain_id] = ch
-                self._event("deleted", ch, f"New chain dropped after {len(ch.points)} points")
+                self._event(EventKind.DELETED, ch, f"New chain dropped after {len(ch.points)} points")
         self.new = keep
         oldest = self.past[0].frame
         self.dropped = {i: c for i, c in self.dropped.items() if c.last.frame >= oldest}
@@ -363,12 +363,12 @@ class ChainManager:
             if not (0.0 <= nxt[0] <= w - 1 and 0.0 <= nxt[1] <= h - 1):
                 ch.status = OUT
                 self.out.append(ch)
-                self._event("exited", ch, f"left the field: next prediction ({nxt[0]:.1f}, {nxt[1]:.1f}) is "
+                self._event(EventKind.EXITED, ch, f"left the field: next prediction ({nxt[0]:.1f}, {nxt[1]:.1f}) is "
                                           f"outside the image; moved to Out after {ch.hits} detections")
             elif ch.misses >= self.tcfg.max_misses:
                 ch.status = LOST
                 self.lost.append(ch)
-                self._event("deleted", ch, f"deleted after {ch.misses} consecutive predictions")
+                self._event(EventKind.DELETED, ch, f"deleted after {ch.misses} consecutive predictions")
             else:
                 still.append(ch)
         self.run = still
@@ -394,7 +394,7 @@ class ChainManager:
             f = Found((float(pu), float(pv)), None, None, None, math.nan)
         if f.uv is not None:
             ch.points.append(ChainPoint(k, f.xy[0], f.xy[1], f.uv[0], f.uv[1], REDETECTED))
-            self._event("redetected", ch, f"re-detected by local re-segmentation at ({f.uv[0]:.1f}, "
+            self._event(EventKind.REDETECTED, ch, f"re-detected by local re-segmentation at ({f.uv[0]:.1f}, "
                                           f"{f.uv[1]:.1f}), threshold {f.threshold:.1f}")
         else:
             ch.points.append(ChainPoint(k, float(pred[0]), float(pred[1]), f.pred_uv[0], f.pred_uv[1], PREDICTED))
@@ -417,7 +417,7 @@ class ChainManager:
         ch.status, ch.promoted_at, ch.misses = RUN, self._frame, 0
         self.run.append(ch)
         back = f", {added} earlier point(s) found by backtracking" if added else ""
-        self._event("promoted", ch, f"promoted New -> Run after {len(ch.points) - added} points "
+        self._event(EventKind.PROMOTED, ch, f"promoted New -> Run after {len(ch.points) - added} points "
                                     f"(length > {self.cfg.length}){back}: Kalman filter started")
 
     def _backtrack(self, ch: Chain, resegment: Resegmenter | None) -> int:
@@ -440,7 +440,7 @@ class ChainManager:
                 ch.points[:0] = earlier
                 for cs in self.past:
                     cs.owner[cs.owner == old.chain_id] = ch.chain_id
-                self._event("absorbed", ch, f"took over the {len(earlier)} point(s) of dropped New chain "
+                self._event(EventKind.ABSORBED, ch, f"took over the {len(earlier)} point(s) of dropped New chain "
                                             f"{old.chain_id} (frames {earlier[0].frame}-{earlier[-1].frame})")
                 return added + len(earlier)
             if j is not None:

@@ -48,7 +48,7 @@ from wfviz.noise import NoiseEstimate
 from wfviz.registration import CameraState
 from wfviz.track_score import DetectionDensity, Thresholds
 from wfviz.trackers.base import FrameResult, StageTimer
-from wfviz.tracking import Prediction, TrackEvent, TrackManager, assign_confirmed_first
+from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackManager, assign_confirmed_first
 
 _BIG = 1e9
 DENSE_CROPS = 64  # more search crops than this: one full-frame crop is faster
@@ -345,7 +345,7 @@ class FusionTracker:
         recover_cost: dict[int, float] = {}
         if is_global:
             for i in lost:
-                events_pre.append(TrackEvent(frame.index, "redetect", preds[i].track_id,
+                events_pre.append(TrackEvent(frame.index, EventKind.WINDOW_LOST, preds[i].track_id,
                                              f"track {preds[i].track_id}: no candidate in its search "
                                              f"window, global detection reruns"))
             if fe is None:
@@ -385,7 +385,7 @@ class FusionTracker:
             birth_shapes=None if blob is None else blob[born_idx],
             density=self.density.at(pred_xy), birth_density=self.density.at(births),
             novelty={i: float(nov[j]) for i, j in taken.items()}, birth_novelty=nov[born_idx])
-        events += [TrackEvent(frame.index, "recovered", preds[i].track_id,
+        events += [TrackEvent(frame.index, EventKind.RECOVERED, preds[i].track_id,
                               f"track {preds[i].track_id} recovered by global detection at "
                               f"({feats.centre[j, 0]:.1f}, {feats.centre[j, 1]:.1f}), "
                               f"{math.hypot(*(feats.centre[j] - pred_xy[i])):.1f} px from its prediction")
@@ -509,7 +509,7 @@ class FusionTracker:
                 self._refs[m.track_id] = _Ref(a, g, a, g, 1, m.phi, not m.recovered)
             else:
                 ref.add(a, g, m.phi, not m.recovered)
-        born = [e.track_id for e in events if e.kind == "born"]
+        born = [e.track_id for e in events if e.kind == EventKind.BORN]
         for tid, j in zip(born, born_idx):
             a, g = float(feats.area[j]), float(feats.grey[j])
             self._refs[tid] = _Ref(a, g, a, g)

@@ -26,7 +26,7 @@ from wfviz.tbd.background import PixelBackground
 from wfviz.tbd.filter import BankOutput, RegionFilter
 from wfviz.tbd.model import matched_filter, normalise, texture_normalise
 from wfviz.trackers.base import FrameResult
-from wfviz.tracking import Prediction, TrackEvent, TrackState
+from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackState
 
 STAGES = ("normalise", "candidates", "predict", "likelihood", "count", "estimate", "resample", "tracks")
 MAX_LOGGED_COUNT = 9  # the total-count posterior is reported for n = 0..9 (the last bin: n >= 9)
@@ -325,7 +325,7 @@ class TBDTracker:
         changed = count != self._count
         if changed:
             pc = float(p_total[min(count, len(p_total) - 1)])
-            events.append(TrackEvent(frame.index, "count", -1,
+            events.append(TrackEvent(frame.index, EventKind.COUNT, -1,
                                      f"target count estimate {self._count} -> {count} (P = {pc:.2f})"))
         self._count = count
         timings["tracks"] = (time.perf_counter() - t2) * 1e3
@@ -400,7 +400,7 @@ class TBDTracker:
                 tr = _Track(self._next_id, x, y_, vx, vy, index)
                 self._tracks[tr.track_id] = tr
                 self._next_id += 1
-                events.append(TrackEvent(index, "born", tr.track_id,
+                events.append(TrackEvent(index, EventKind.BORN, tr.track_id,
                                          f"track {tr.track_id} tentative target at ({x:.1f}, {y_:.1f})"
                                          if not confirmed else
                                          f"track {tr.track_id} started at ({x:.1f}, {y_:.1f})"))
@@ -409,7 +409,7 @@ class TBDTracker:
             tr.confirmed = bool(confirmed)
             if confirmed and not tr.ever_confirmed:
                 tr.ever_confirmed = True
-                events.append(TrackEvent(index, "confirmed", tr.track_id,
+                events.append(TrackEvent(index, EventKind.CONFIRMED, tr.track_id,
                                          f"track {tr.track_id} confirmed: the count estimate includes it "
                                          f"(amplitude {amp:.1f} sigma)"))
             tracks.append(TrackState(tr.track_id, x, y_, vx, vy, tr.confirmed, False, tr.hits, 0))
@@ -421,7 +421,7 @@ class TBDTracker:
             tr = self._tracks[tid]
             if index - tr.last_frame > tc.id_memory:
                 del self._tracks[tid]
-                events.append(TrackEvent(index, "deleted", tid,
+                events.append(TrackEvent(index, EventKind.DELETED, tid,
                                          f"track {tid} deleted: not in the estimate for "
                                          f"{index - tr.last_frame} frames"))
         return tracks, preds, events, amps, stds
