@@ -249,7 +249,7 @@ def test_recording_logs_the_fusion_entities(tmp_path):
 
 
 def test_registered_and_config_round_trips():
-    assert TRACKERS["fusion"] == (FusionTracker, FusionConfig)
+    assert TRACKERS["fusion"][:2] == (FusionTracker, FusionConfig)
     cfg = FusionConfig()
     assert (cfg.fusion.alpha, cfg.fusion.beta, cfg.fusion.gamma) == (0.4, 0.3, 0.3)
     assert config_from_dict(tomllib.loads(config_to_toml(cfg)), FusionConfig) == cfg

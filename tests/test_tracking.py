@@ -476,3 +476,18 @@ def test_every_event_of_every_tracker_has_a_declared_kind():
                 seen.add(e.kind)
     assert {EventKind.BORN, EventKind.CONFIRMED, EventKind.DELETED, EventKind.COUNT} <= seen
     assert len({k.value for k in EventKind}) == len(EventKind)
+
+
+def test_every_registered_tracker_names_its_tracker_config_and_recorder():
+    """One registry line per tracker: the tracker makes results from its config's defaults, the
+    config is a dataclass, and the named recorder is a Recorder under wfviz.record."""
+    import dataclasses
+
+    from wfviz.record import Recorder, recorder_class
+    from wfviz.trackers import TRACKERS, make_tracker
+
+    for name, entry in TRACKERS.items():
+        assert dataclasses.is_dataclass(entry.config), name
+        assert isinstance(make_tracker(name), entry.tracker)
+        rec = recorder_class(name)
+        assert issubclass(rec, Recorder) and rec.__module__.startswith("wfviz.record."), name

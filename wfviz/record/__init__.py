@@ -1,17 +1,22 @@
-"""The only package that imports rerun: maps each tracker's stage results to entities."""
+"""The only package that imports rerun: maps each tracker's stage results to entities. Which
+adapter records which tracker is named in ``wfviz.trackers.TRACKERS``."""
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
 
-from wfviz.record.fusion import FusionRecorder
-from wfviz.record.gewc import GEWCRecorder
 from wfviz.record.recorder import Recorder, track_color
-from wfviz.record.starfield import StarfieldRecorder
-from wfviz.record.tbd import TBDRecorder
+from wfviz.trackers import TRACKERS
 
-RECORDERS: dict[str, type[Recorder]] = {"gewc": GEWCRecorder, "fusion": FusionRecorder,
-                                         "starfield": StarfieldRecorder, "tbd": TBDRecorder}
+
+def recorder_class(tracker: str) -> type[Recorder]:
+    """The logging adapter class registered for ``tracker``."""
+    module, _, name = TRACKERS[tracker].recorder.partition(":")
+    return getattr(importlib.import_module(module), name)
+
+
+RECORDERS: dict[str, type[Recorder]] = {name: recorder_class(name) for name in TRACKERS}
 
 
 def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:
@@ -19,4 +24,4 @@ def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:
     return RECORDERS[tracker](path, tracker=tracker, **kwargs)  # type: ignore[arg-type]
 
 
-__all__ = ["RECORDERS", "Recorder", "open_recorder", "track_color"]
+__all__ = ["RECORDERS", "Recorder", "open_recorder", "recorder_class", "track_color"]

@@ -1,10 +1,11 @@
 """Selectable trackers. Each is one module plus its config class; its Rerun adapter lives in
-``wfviz.record``. Register a new tracker in ``TRACKERS`` (and its recorder in ``RECORDERS``)."""
+``wfviz.record`` (the only package that imports rerun). A new tracker is one line in
+``TRACKERS``: its tracker class, config class and recorder (named, imported only to record)."""
 
 from __future__ import annotations
 
 from pathlib import Path
-from typing import Any
+from typing import Any, NamedTuple
 
 from wfviz.config import FusionConfig, GEWCConfig, StarfieldConfig, TBDConfig, load_config
 from wfviz.trackers.base import FrameResult, Tracker
@@ -13,14 +14,24 @@ from wfviz.trackers.gewc import GEWCTracker
 from wfviz.trackers.starfield import StarfieldTracker
 from wfviz.trackers.tbd import TBDTracker
 
-# name -> (tracker class, config class)
-TRACKERS: dict[str, tuple[type, type]] = {"gewc": (GEWCTracker, GEWCConfig),
-                                          "fusion": (FusionTracker, FusionConfig),
-                                          "starfield": (StarfieldTracker, StarfieldConfig),
-                                          "tbd": (TBDTracker, TBDConfig)}
+class TrackerEntry(NamedTuple):
+    """One registered tracker: its class, its config class and its recorder adapter
+    (``module:Class`` under ``wfviz.record``)."""
+
+    tracker: type
+    config: type
+    recorder: str
 
 
-def _entry(name: str) -> tuple[type, type]:
+TRACKERS: dict[str, TrackerEntry] = {
+    "gewc": TrackerEntry(GEWCTracker, GEWCConfig, "wfviz.record.gewc:GEWCRecorder"),
+    "fusion": TrackerEntry(FusionTracker, FusionConfig, "wfviz.record.fusion:FusionRecorder"),
+    "starfield": TrackerEntry(StarfieldTracker, StarfieldConfig, "wfviz.record.starfield:StarfieldRecorder"),
+    "tbd": TrackerEntry(TBDTracker, TBDConfig, "wfviz.record.tbd:TBDRecorder"),
+}
+
+
+def _entry(name: str) -> TrackerEntry:
     try:
         return TRACKERS[name]
     except KeyError:
@@ -29,13 +40,13 @@ def _entry(name: str) -> tuple[type, type]:
 
 def config_class(name: str) -> type:
     """The config dataclass of tracker ``name``."""
-    return _entry(name)[1]
+    return _entry(name).config
 
 
 def make_tracker(name: str, config: Any | None = None) -> Tracker:
     """Instantiate tracker ``name`` with its config (defaults when None)."""
-    cls, cfg_cls = _entry(name)
-    return cls(config if config is not None else cfg_cls())
+    e = _entry(name)
+    return e.tracker(config if config is not None else e.config())
 
 
 def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
@@ -43,6 +54,6 @@ def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
     return make_tracker(name, load_config(config_file, config_class(name)))
 
 
-__all__ = ["TRACKERS", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "TBDTracker", "Tracker", "config_class",
+__all__ = ["TRACKERS", "TrackerEntry", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "TBDTracker", "Tracker", "config_class",
            "load_tracker",
            "make_tracker"]
