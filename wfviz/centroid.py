@@ -9,6 +9,7 @@ patch coordinates (x = column, y = row, origin at the centre of the patch's top-
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
@@ -157,9 +158,9 @@ def measure(residual: np.ndarray, labels: np.ndarray, component: int, centre: tu
     subtracted (so the background and any other target in the window are 0). Returns image
     coordinates; weights are all 1/8 for the intensity centroid.
 
-    ``method``: "gewc" (faithful, eqs. 4-7), "intensity", "gewc-weighted"
-    (:func:`gewc_weighted_centroid`) or "gaussian" (:func:`gaussian_fit`); the last two also read
-    the unthresholded window, without the pixels of other components.
+    ``method``: a key of :data:`CENTROID_METHODS`: "gewc" (faithful, eqs. 4-7), "intensity",
+    "gewc-weighted" (:func:`gewc_weighted_centroid`) or "gaussian" (:func:`gaussian_fit`); the
+    last two also read the unthresholded window, without the pixels of other components.
     """
     h, w = residual.shape
     half = size // 2
@@ -169,32 +170,44 @@ def measure(residual: np.ndarray, labels: np.ndarray, component: int, centre: tu
     win = residual[y0:y1, x0:x1].astype(np.float64)
     thr = threshold[y0:y1, x0:x1] if isinstance(threshold, np.ndarray) else threshold
     patch = np.where(labels[y0:y1, x0:x1] == component, np.maximum(win - thr, 0.0), 0.0)
-    if method == "intensity":
-        c = intensity_centroid(patch)
-        if c is None:
-            return None
-        return CentroidResult(c[0] + x0, c[1] + y0, np.full(N_REGIONS, 1.0 / N_REGIONS))
-    if method == "gewc-weighted":
+    if method not in CENTROID_METHODS:
+        raise ValueError(f"unknown centroid method {method!r} (available: {', '.join(CENTROID_METHODS)})")
+
+    def others_out() -> np.ndarray:  # the window without the pixels of other components
         lab = labels[y0:y1, x0:x1]
-        r = gewc_weighted_centroid(win, patch, (lab == component) | (lab == 0), bins=bins)
-        if r is None:
-            return None
-        return CentroidResult(r.x + x0, r.y + y0, r.weights)
-    if method == "gaussian":   # fit the unthresholded window; other components are left out
-        start = intensity_centroid(patch)
-        if start is None:
-            return None
-        lab = labels[y0:y1, x0:x1]
-        fit = gaussian_fit(win, (lab == component) | (lab == 0), start)
-        if fit is None:
-            return None
-        return CentroidResult(fit.x + x0, fit.y + y0, np.full(N_REGIONS, 1.0 / N_REGIONS))
-    if method != "gewc":
-        raise ValueError(f"unknown centroid method {method!r}")
-    r = gewc_centroid(patch, bins=bins, iterations=iterations)
-    if r is None:
-        return None
-    return CentroidResult(r.x + x0, r.y + y0, r.weights)
+        return (lab == component) | (lab == 0)
+
+    r = CENTROID_METHODS[method](win, patch, others_out, bins, iterations)
+    return None if r is None else CentroidResult(r.x + x0, r.y + y0, r.weights)
+
+
+_EQUAL = np.full(N_REGIONS, 1.0 / N_REGIONS)
+
+
+def _by_intensity(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+    c = intensity_centroid(patch)
+    return None if c is None else CentroidResult(c[0], c[1], _EQUAL.copy())
+
+
+def _by_gewc(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+    return gewc_centroid(patch, bins=bins, iterations=iterations)
+
+
+def _by_gewc_weighted(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+    return gewc_weighted_centroid(win, patch, others_out(), bins=bins)
+
+
+def _by_gaussian(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+    start = intensity_centroid(patch)  # fit the unthresholded window; other components left out
+    fit = None if start is None else gaussian_fit(win, others_out(), start)
+    return None if fit is None else CentroidResult(fit.x, fit.y, _EQUAL.copy())
+
+
+# method -> f(window, thresholded component patch, mask without other components (a call),
+# bins, iterations) -> CentroidResult in window coordinates, or None
+CENTROID_METHODS: dict[str, Callable[..., CentroidResult | None]] = {
+    "gewc": _by_gewc, "intensity": _by_intensity, "gewc-weighted": _by_gewc_weighted,
+    "gaussian": _by_gaussian}
 
 
 # --- Gaussian fit and Cramér–Rao bound (pixel-integrated Gaussian spot + constant background) ---
