@@ -184,20 +184,24 @@ def measure(residual: np.ndarray, labels: np.ndarray, component: int, centre: tu
 _EQUAL = np.full(N_REGIONS, 1.0 / N_REGIONS)
 
 
-def _by_intensity(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+def _by_intensity(win: np.ndarray, patch: np.ndarray, others_out: Callable[[], np.ndarray], bins: int,
+                  iterations: int) -> CentroidResult | None:
     c = intensity_centroid(patch)
     return None if c is None else CentroidResult(c[0], c[1], _EQUAL.copy())
 
 
-def _by_gewc(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+def _by_gewc(win: np.ndarray, patch: np.ndarray, others_out: Callable[[], np.ndarray], bins: int,
+             iterations: int) -> CentroidResult | None:
     return gewc_centroid(patch, bins=bins, iterations=iterations)
 
 
-def _by_gewc_weighted(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+def _by_gewc_weighted(win: np.ndarray, patch: np.ndarray, others_out: Callable[[], np.ndarray], bins: int,
+                      iterations: int) -> CentroidResult | None:
     return gewc_weighted_centroid(win, patch, others_out(), bins=bins)
 
 
-def _by_gaussian(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN202
+def _by_gaussian(win: np.ndarray, patch: np.ndarray, others_out: Callable[[], np.ndarray], bins: int,
+                 iterations: int) -> CentroidResult | None:
     start = intensity_centroid(patch)  # fit the unthresholded window; other components left out
     fit = None if start is None else gaussian_fit(win, others_out(), start)
     return None if fit is None else CentroidResult(fit.x, fit.y, _EQUAL.copy())
@@ -205,7 +209,8 @@ def _by_gaussian(win, patch, others_out, bins, iterations):  # noqa: ANN001, ANN
 
 # method -> f(window, thresholded component patch, mask without other components (a call),
 # bins, iterations) -> CentroidResult in window coordinates, or None
-CENTROID_METHODS: dict[str, Callable[..., CentroidResult | None]] = {
+CentroidMethod = Callable[[np.ndarray, np.ndarray, Callable[[], np.ndarray], int, int], CentroidResult | None]
+CENTROID_METHODS: dict[str, CentroidMethod] = {
     "gewc": _by_gewc, "intensity": _by_intensity, "gewc-weighted": _by_gewc_weighted,
     "gaussian": _by_gaussian}
 

@@ -26,8 +26,7 @@ TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
 TRUTH_COLOR = (255, 255, 255, 200)
 TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
-EVENT_LEVELS = {"born": "DEBUG", "confirmed": "INFO", "deleted": "WARN",
-                "meeting_on": "INFO", "meeting_off": "INFO", "reacquired": "INFO"}  # deleting a tentative track: DEBUG
+EVENT_LEVELS = {EventKind.BORN: "DEBUG", EventKind.DELETED: "WARN"}  # others INFO; a tentative track's deletion: DEBUG
 
 
 @functools.lru_cache(maxsize=8192)

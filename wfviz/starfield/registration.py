@@ -73,11 +73,10 @@ class Registration:
         return self.method != "none"
 
 
-def rigid_matrix(dx: float, dy: float, rotation_deg: float, centre: tuple[float, float],
-                 scale: float = 1.0) -> np.ndarray:
-    """2x3 affine of p -> c + s R(p - c) + (dx, dy) (a rigid motion at scale 1)."""
+def rigid_matrix(dx: float, dy: float, rotation_deg: float, centre: tuple[float, float]) -> np.ndarray:
+    """2x3 affine of p -> c + R(p - c) + (dx, dy)."""
     a = math.radians(rotation_deg)
-    R = scale * np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
+    R = np.array([[math.cos(a), -math.sin(a)], [math.sin(a), math.cos(a)]])
     c = np.asarray(centre, dtype=np.float64)
     return np.column_stack([R, c - R @ c + np.array([dx, dy])])
 
