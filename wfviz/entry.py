@@ -4,6 +4,8 @@ moment to import) or after the command's own handling ends the program with one 
 
 from __future__ import annotations
 
+import os
+import signal
 import sys
 
 
@@ -12,12 +14,22 @@ def _interrupted() -> None:
     sys.exit(130)
 
 
+def _exit_now(signum: int, frame: object) -> None:
+    """SIGINT while loading: nothing is written yet, so leave at once. Raising KeyboardInterrupt
+    here could be swallowed by a third-party import's bare ``except`` (seen: exit 0)."""
+    sys.stderr.write("wfviz: error: interrupted\n")
+    sys.stderr.flush()
+    os._exit(130)
+
+
 def main() -> None:
     """Run the command line (:mod:`wfviz.cli`)."""
+    previous = signal.signal(signal.SIGINT, _exit_now)
     try:
         from wfviz.cli import main as cli_main
     except KeyboardInterrupt:
         _interrupted()
+    signal.signal(signal.SIGINT, previous)
     try:
         cli_main()
     except KeyboardInterrupt:
