@@ -28,8 +28,8 @@ import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wfviz.config import StarfieldConfig  # noqa: E402
-from wfviz.frames import Frame  # noqa: E402
-from wfviz.starfield import segmentation as seg  # noqa: E402
+from wfviz.io.frames import Frame  # noqa: E402
+from wfviz.trackers.starfield import segmentation as seg  # noqa: E402
 from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -3,10 +3,10 @@
 For each (peak SNR, spot σ) case, ``--samples`` frames of white Gaussian noise (σ_n = 1) each
 hold one pixel-integrated Gaussian spot (``wfviz.synth.psf.add_gaussian_spot``, peak = SNR) at
 a random sub-pixel position. The tracker's measurement path is followed: residual (background
-known, or the 5×5 top-hat of ``wfviz.background``) → ``wfviz.detection.detect`` (threshold
+known, or the 5×5 top-hat of ``wfviz.stages.background``) → ``wfviz.stages.detection.detect`` (threshold
 mean + 4·std of the residual, 8-connected components) → the component nearest the truth →
-``wfviz.centroid.measure`` with every method in the same window (the tracker's window size).
-The Cramér–Rao bound of each sample (``wfviz.centroid.position_crb``, unknown peak, σ and
+``wfviz.stages.centroid.measure`` with every method in the same window (the tracker's window size).
+The Cramér–Rao bound of each sample (``wfviz.stages.centroid.position_crb``, unknown peak, σ and
 background) is averaged over the detected samples.
 
 Run:  python benchmarks/centroid_accuracy.py            (full study, writes the plot)
@@ -24,10 +24,10 @@ from pathlib import Path
 
 import numpy as np
 
-from wfviz.background import suppress_background
-from wfviz.centroid import measure, position_crb
 from wfviz.config import DetectionConfig
-from wfviz.detection import detect
+from wfviz.stages.background import suppress_background
+from wfviz.stages.centroid import measure, position_crb
+from wfviz.stages.detection import detect
 from wfviz.synth.psf import add_gaussian_spot
 
 METHODS = ("gewc", "gewc-weighted", "intensity", "gaussian")

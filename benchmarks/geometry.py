@@ -33,8 +33,8 @@ from doc_blocks import write_block  # noqa: E402
 ROOT = Path(__file__).resolve().parent.parent
 sys.path.insert(0, str(ROOT))
 from wfviz.config import CircleConfig, HorizonConfig  # noqa: E402
-from wfviz.horizon import HorizonTracker, find_horizon, horizon_confident  # noqa: E402
-from wfviz.imaging_circle import ImagingMask, estimate_imaging_circle  # noqa: E402
+from wfviz.stages.horizon import HorizonTracker, find_horizon, horizon_confident  # noqa: E402
+from wfviz.stages.imaging_circle import ImagingMask, estimate_imaging_circle  # noqa: E402
 
 SHARED = ROOT.parent / "shared" / "data"
 DOC = ROOT / "docs" / "pipeline.md"

@@ -41,9 +41,9 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.clip import open_clip  # noqa: E402
 from wfviz.config import config_to_toml  # noqa: E402
-from wfviz.frames import Frame  # noqa: E402
+from wfviz.io.clip import open_clip  # noqa: E402
+from wfviz.io.frames import Frame  # noqa: E402
 from wfviz.run import run  # noqa: E402
 from wfviz.synth.demo import demo_clip  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402

@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 
 from wfviz.config import load_config
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
 from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import Tracker
 

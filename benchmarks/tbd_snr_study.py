@@ -36,7 +36,7 @@ from pathlib import Path  # noqa: E402
 import numpy as np  # noqa: E402
 
 from wfviz.evaluate import frame_errors  # noqa: E402
-from wfviz.frames import Frame  # noqa: E402
+from wfviz.io.frames import Frame  # noqa: E402
 from wfviz.run import run  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
 from wfviz.trackers import make_tracker  # noqa: E402

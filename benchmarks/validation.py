@@ -119,7 +119,7 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
     """Track one clip in-process and score it (confirmed tracks, the group's gate)."""
     import numpy as np
 
-    from wfviz.clip import open_clip
+    from wfviz.io.clip import open_clip
     from wfviz.evaluate import read_truth
     from wfviz.run import run
 

@@ -14,7 +14,7 @@ from typer.testing import CliRunner
 
 from test_signals import verify
 from wfviz.cli import app
-from wfviz.clip import ClipError
+from wfviz.io.clip import ClipError
 
 H, W = 32, 40  # above the 16x16 minimum, small enough to be quick
 RNG = np.random.default_rng(7)

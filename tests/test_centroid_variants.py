@@ -7,14 +7,14 @@ import math
 import numpy as np
 import pytest
 
-from wfviz.centroid import (
+from wfviz.config import ConfigError, config_from_dict
+from wfviz.stages.centroid import (
     gaussian_fit,
     gaussian_model,
     gewc_weighted_centroid,
     measure,
     position_crb,
 )
-from wfviz.config import ConfigError, config_from_dict
 from wfviz.synth.psf import add_gaussian_spot, gaussian_spot_image
 
 NEW_METHODS = ("gewc-weighted", "gaussian")

@@ -13,8 +13,9 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from wfviz.config import GEWCConfig, config_from_dict
+from wfviz.config import config_from_dict
 from wfviz.evaluate import read_points, score_targets
+from wfviz.trackers.gewc.config import GEWCConfig
 
 N_FRAMES = 120  # covers the crossing (frames 73-83) and target 4's birth (frame 30)
 STAGES = ["defects", "mask", "horizon", "suppress", "detect", "associate", "centroid", "kalman", "total"]

@@ -1,4 +1,4 @@
-"""Tests for wfviz.clip: image folders, .npy stacks and videos streamed as luma frames."""
+"""Tests for wfviz.io.clip: image folders, .npy stacks and videos streamed as luma frames."""
 
 from __future__ import annotations
 
@@ -8,8 +8,8 @@ import cv2
 import numpy as np
 import pytest
 
-from wfviz.clip import ClipError, ImageFolderClip, NpyClip, VideoClip, _choose_luma, open_clip
-from wfviz.frames import Clip, Frame
+from wfviz.io.clip import ClipError, ImageFolderClip, NpyClip, VideoClip, _choose_luma, open_clip
+from wfviz.io.frames import Clip, Frame
 
 H, W = 48, 64
 LOW, HIGH = 5, 250  # near the extremes: a 16-235 stretch would clip these to 0 and 255
@@ -367,7 +367,7 @@ class MisreportingCapture:
 
 
 def test_seek_falls_back_to_reading_forward(tmp_path: Path) -> None:
-    from wfviz.clip import _decode, _seek
+    from wfviz.io.clip import _decode, _seek
 
     path = write_video(tmp_path / "c.mkv", "FFV1")
     cap = _seek(MisreportingCapture(path), path, "raw", 7)  # type: ignore[arg-type]

@@ -1,4 +1,4 @@
-"""Static clutter (wfviz.clutter) and the meeting-mode options for cluttered scenes.
+"""Static clutter (wfviz.stages.clutter) and the meeting-mode options for cluttered scenes.
 
 The static-clutter labels act on the paper's confirmation rule (``tracking.confirm = "hits"``),
 so the track tests with labels configure it; under the default sequential test static clutter
@@ -10,8 +10,8 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wfviz.clutter import StaticClutter
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
+from wfviz.stages.clutter import StaticClutter
 from wfviz.tracking import TrackManager
 
 GROUND = np.array([[20.0 + 15 * i, 30.0 + 11 * (i % 4)] for i in range(12)])  # 12 fixed spots
@@ -153,7 +153,8 @@ def test_nan_pixels_in_the_earlier_image_do_not_hide_the_spot():
                                              ({"max_static": 0.6, "delete_static": 0.5},
                                               "clutter.delete_static")])
 def test_inconsistent_clutter_settings_are_a_config_error(section, message):
-    from wfviz.config import ConfigError, GEWCConfig, config_from_dict
+    from wfviz.config import ConfigError, config_from_dict
+    from wfviz.trackers.gewc.config import GEWCConfig
     with pytest.raises(ConfigError, match=message):
         config_from_dict({"clutter": section}, GEWCConfig)
 

@@ -12,10 +12,10 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wfviz.config import GEWCConfig
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.trackers import make_tracker
+from wfviz.trackers.gewc.config import GEWCConfig
 
 
 def frames(n, hot=((40, 50), (70, 20)), static_spot=(30.4, 80.6), seed=0):

@@ -9,13 +9,14 @@ from collections import defaultdict
 import numpy as np
 import pytest
 
-from wfviz.config import ConfigError, FusionConfig, config_from_dict, config_to_toml
-from wfviz.frames import Frame
+from wfviz.config import ConfigError, config_from_dict, config_to_toml
+from wfviz.io.frames import Frame
 from wfviz.run import run
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import TRACKERS, make_tracker
 from wfviz.trackers.fusion import FusionTracker, fused_cost, min_area_rect, scalar_phi
+from wfviz.trackers.fusion.config import FusionConfig
 
 PLAIN = {"circle": {"enabled": False}, "horizon": {"enabled": False}}
 # the paper's detection and confirmation (the defaults are the local-noise CFAR and the
@@ -234,7 +235,7 @@ def test_recording_logs_the_fusion_entities(tmp_path):
     for path in ["/camera/detections", "/camera/gates", "/camera/predictions", "/camera/tracks",
                  "/camera/rects", "/camera/measurements", "/detection/global", "/timing/total",
                  "/timing/suppress", "/timing/noise", "/timing/detect", "/timing/associate",
-                 # the shared front end's (wfviz/front_end.py) and the sequential test's
+                 # the shared front end's (wfviz/stages/front_end.py) and the sequential test's
                  "/detection/noise_sigma", "/registration/dx", "/registration/dy",
                  "/registration/moving", "/tracks/confirm_level"]:
         assert frames[path] == every, path

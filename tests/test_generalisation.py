@@ -8,7 +8,7 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.trackers import make_tracker
 from wfviz.trackers.gewc import GEWCTracker

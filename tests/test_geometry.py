@@ -11,9 +11,9 @@ import numpy as np
 import pytest
 
 from wfviz.config import CircleConfig, HorizonConfig
-from wfviz.horizon import (CONFIDENT, Horizon, HorizonTracker, blend, find_horizon, horizon_confident,
+from wfviz.stages.horizon import (CONFIDENT, Horizon, HorizonTracker, blend, find_horizon, horizon_confident,
                            search_zones)
-from wfviz.imaging_circle import (ImagingCircle, ImagingMask, estimate_imaging_circle, non_imaging_mask,
+from wfviz.stages.imaging_circle import (ImagingCircle, ImagingMask, estimate_imaging_circle, non_imaging_mask,
                                   resolve_circle)
 
 H, W = 240, 320

@@ -14,8 +14,8 @@ from pathlib import Path
 
 import pytest
 
-from wfviz.clip import open_clip
 from wfviz.evaluate import evaluate_points, read_truth
+from wfviz.io.clip import open_clip
 from wfviz.trackers import load_tracker
 
 ROOT = Path(__file__).resolve().parent.parent

@@ -1,12 +1,12 @@
-"""Local noise estimate and tail calibration (wfviz.noise) on noise of known statistics."""
+"""Local noise estimate and tail calibration (wfviz.stages.noise) on noise of known statistics."""
 
 from __future__ import annotations
 
 import numpy as np
 import pytest
 
-from wfviz.background import suppress_background
-from wfviz.noise import NoiseModel, TailCalibration, data_quantum, tile_statistics
+from wfviz.stages.background import suppress_background
+from wfviz.stages.noise import NoiseModel, TailCalibration, data_quantum, tile_statistics
 
 
 def test_tile_sigma_follows_a_noise_ramp_and_ignores_a_bright_spot() -> None:

@@ -17,8 +17,8 @@ from typer.testing import CliRunner
 
 from test_bad_input import H, W, noise
 from test_clip import write_folder
-from wfviz import outputs
 from wfviz.cli import app
+from wfviz.io import outputs
 
 WFVIZ = [sys.executable, "-m", "wfviz"]
 

@@ -17,11 +17,12 @@ from hypothesis import strategies as st
 from typer.testing import CliRunner
 
 from wfviz.cli import app
-from wfviz.clip import MIN_SIDE, ClipError, ClipWarning, open_clip
-from wfviz.config import ConfigError, GEWCConfig, config_from_dict, load_config
-from wfviz.frames import Frame
+from wfviz.config import ConfigError, config_from_dict, load_config
+from wfviz.io.clip import MIN_SIDE, ClipError, ClipWarning, open_clip
+from wfviz.io.frames import Frame
 from wfviz.run import min_frame_side, run
 from wfviz.trackers import TRACKERS, make_tracker
+from wfviz.trackers.gewc.config import GEWCConfig
 
 SETTINGS = settings(max_examples=60, deadline=None, derandomize=True,
                     suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])

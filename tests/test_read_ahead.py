@@ -1,4 +1,4 @@
-"""Tests for wfviz.frames.read_ahead (decoding in a background thread) and the CLIP/frames layout."""
+"""Tests for wfviz.io.frames.read_ahead (decoding in a background thread) and the CLIP/frames layout."""
 
 from __future__ import annotations
 
@@ -12,8 +12,8 @@ from typer.testing import CliRunner
 
 from test_clip import ramp, write_folder
 from wfviz.cli import app
-from wfviz.clip import open_clip
-from wfviz.frames import Frame, read_ahead
+from wfviz.io.clip import open_clip
+from wfviz.io.frames import Frame, read_ahead
 
 
 def numbered(n: int, fail_at: int | None = None, closed: list[bool] | None = None):  # noqa: ANN201

@@ -11,7 +11,7 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
-from wfviz.clip import ClipError, open_clip
+from wfviz.io.clip import ClipError, open_clip
 import pyarrow as pa
 
 from wfviz.record.recorder import bar_chart_arrays, bar_chart_columns, class_ids, track_colors

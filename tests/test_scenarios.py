@@ -12,7 +12,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wfviz.frames import Clip
+from wfviz.io.frames import Clip
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.synth.scenarios import (ScenarioClip, TruthRow, list_scenarios, make_scenario,

@@ -16,7 +16,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
-from wfviz.clip import open_clip
+from wfviz.io.clip import open_clip
 from wfviz.run import run
 from wfviz.trackers import make_tracker
 

@@ -5,13 +5,13 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wfviz.background import suppress_background
-from wfviz.centroid import gewc_centroid, intensity_centroid, measure
 from wfviz.config import DetectionConfig, HorizonConfig
-from wfviz.detection import blobness, detect
-from wfviz.horizon import find_horizon, horizon_confident, max_gradient
-from wfviz.imaging_circle import estimate_imaging_circle, non_imaging_mask, ImagingCircle
-from wfviz.noise import NoiseModel
+from wfviz.stages.background import suppress_background
+from wfviz.stages.centroid import gewc_centroid, intensity_centroid, measure
+from wfviz.stages.detection import blobness, detect
+from wfviz.stages.horizon import find_horizon, horizon_confident, max_gradient
+from wfviz.stages.imaging_circle import estimate_imaging_circle, non_imaging_mask, ImagingCircle
+from wfviz.stages.noise import NoiseModel
 from wfviz.synth.psf import add_gaussian_spot
 
 
@@ -219,7 +219,7 @@ def test_pipeline_circle_and_horizon_on_the_demo_scene():
 
 
 def test_search_zones_exclude_ground_modes():
-    from wfviz.horizon import Horizon, search_zones
+    from wfviz.stages.horizon import Horizon, search_zones
     valid = np.ones((40, 50), dtype=bool)
     horizon = Horizon(np.full(50, 20.0))
     sky_rows = np.nonzero(search_zones(valid, horizon, 2.0, "always", False)[0].any(axis=1))[0]
@@ -268,7 +268,7 @@ def _gewc_reference(patch: np.ndarray, bins: int = 32, iterations: int = 2) -> t
 def test_gewc_matches_a_pixel_by_pixel_reading_of_the_equations():
     """The one (batched) GEWC implementation against eqs. 4-7 written out with loops, on spots
     at sub-pixel offsets with noise, to 1e-9 px; single-patch calls are the batched one."""
-    from wfviz.centroid import gewc_centroids
+    from wfviz.stages.centroid import gewc_centroids
 
     rng = np.random.default_rng(11)
     yy, xx = np.mgrid[0:11, 0:11]

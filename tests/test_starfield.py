@@ -10,14 +10,15 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wfviz.config import ChainConfig, ConfigError, StarfieldConfig, config_from_dict, config_to_toml
-from wfviz.frames import Frame
-from wfviz.starfield.chains import OUT, PREDICTED, RUN, Candidates, ChainManager
-from wfviz.starfield.metrics import chain_rows, paper_scores
-from wfviz.starfield.registration import apply, register, rigid_matrix
+from wfviz.config import ConfigError, config_from_dict, config_to_toml
+from wfviz.io.frames import Frame
 from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import make_tracker
 from wfviz.trackers.starfield import StarfieldTracker
+from wfviz.trackers.starfield.chains import OUT, PREDICTED, RUN, Candidates, ChainManager
+from wfviz.trackers.starfield.config import ChainConfig, StarfieldConfig
+from wfviz.trackers.starfield.metrics import chain_rows, paper_scores
+from wfviz.trackers.starfield.registration import apply, register, rigid_matrix
 
 SHAPE = (1024, 1024)
 

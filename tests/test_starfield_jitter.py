@@ -14,12 +14,12 @@ import numpy as np
 import pytest
 
 from wfviz.evaluate import read_truth
-from wfviz.frames import Frame
-from wfviz.starfield.metrics import chain_rows, paper_scores
-from wfviz.starfield.registration import apply
-from wfviz.starfield.segmentation import SHARP_FRACTION, segment, sharpness
-from wfviz.config import StarSegmentationConfig
+from wfviz.io.frames import Frame
 from wfviz.trackers.starfield import StarfieldTracker
+from wfviz.trackers.starfield.config import StarSegmentationConfig
+from wfviz.trackers.starfield.metrics import chain_rows, paper_scores
+from wfviz.trackers.starfield.registration import apply
+from wfviz.trackers.starfield.segmentation import SHARP_FRACTION, segment, sharpness
 
 ROOT = Path(__file__).resolve().parent.parent
 S5 = ROOT.parent / "shared" / "data" / "independent" / "S5"
@@ -114,7 +114,7 @@ def test_s5_cli_tracks_both_targets(tmp_path):
 
 @pytest.mark.skipif(not (S5 / "frames").is_dir(), reason=f"independent sample S5 not found at {S5}")
 def test_s5_paper_metrics_on_the_chains():
-    from wfviz.clip import open_clip
+    from wfviz.io.clip import open_clip
 
     tracker = StarfieldTracker()
     for f in open_clip(S5 / "frames").frames():
@@ -131,7 +131,7 @@ def test_s5_paper_metrics_on_the_chains():
 def test_robust_fit_ignores_two_fifths_of_wrong_pairs():
     """RANSAC before the least-squares fit: 40 % of the pairs wrong by up to 8 px (mis-paired
     stars) leave the rotation and shift of the other 60 % within 0.02 px at the field's edge."""
-    from wfviz.starfield.registration import robust_fit, rigid_matrix
+    from wfviz.trackers.starfield.registration import robust_fit, rigid_matrix
 
     rng = np.random.default_rng(5)
     a = rng.uniform(0, SIZE, (100, 2))

@@ -10,7 +10,7 @@ import cv2
 import numpy as np
 import pytest
 
-from wfviz.frames import Clip
+from wfviz.io.frames import Clip
 from wfviz.synth import DemoClip, add_gaussian_spot, demo_clip, gaussian_spot_image, horizon_row
 from wfviz.synth.demo import _disc_coverage
 

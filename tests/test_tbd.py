@@ -11,13 +11,14 @@ from dataclasses import replace
 import numpy as np
 import pytest
 
-from wfviz.config import ConfigError, TBDConfig, config_from_dict, config_to_toml
-from wfviz.frames import Frame
+from wfviz.config import ConfigError, config_from_dict, config_to_toml
+from wfviz.io.frames import Frame
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.synth.scenarios import make_scenario
-from wfviz.tbd.model import likelihood, psf_patch
 from wfviz.trackers import TRACKERS, make_tracker
 from wfviz.trackers.tbd import TBDTracker
+from wfviz.trackers.tbd.config import TBDConfig
+from wfviz.trackers.tbd.model import likelihood, psf_patch
 
 SIGMA, LEVEL = 20.0, 1000.0
 

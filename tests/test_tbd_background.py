@@ -1,5 +1,5 @@
 """Track-before-detect on a background and noise it must estimate (issue 19): per-pixel running
-background, per-tile noise from frame differences, hot pixels excluded (wfviz.tbd.background)."""
+background, per-tile noise from frame differences, hot pixels excluded (wfviz.trackers.tbd.background)."""
 
 from __future__ import annotations
 
@@ -12,10 +12,10 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
 from wfviz.synth.scenarios import make_scenario
-from wfviz.tbd.background import PixelBackground
 from wfviz.trackers.tbd import TBDTracker
+from wfviz.trackers.tbd.background import PixelBackground
 
 ROOT = Path(__file__).resolve().parent.parent
 S6 = ROOT.parent / "shared" / "data" / "independent" / "S6"

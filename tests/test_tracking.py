@@ -1,7 +1,7 @@
 """Kalman filter and track management against hand-computed numbers and scripted scenes.
 
 The default confirmation is the sequential test (``tracking.confirm = "sprt"``,
-:mod:`wfviz.track_score`); tests of the paper's rule and of its options (confirm_blobness,
+:mod:`wfviz.tracking.confirmation`); tests of the paper's rule and of its options (confirm_blobness,
 confirm_moving, confirm_significance, reacquire, clutter labels) configure ``confirm = "hits"``.
 """
 
@@ -10,10 +10,11 @@ from __future__ import annotations
 import numpy as np
 import pytest
 
-from wfviz import kalman, track_score
-from wfviz.clip import Frame
-from wfviz.config import ClutterConfig, GEWCConfig, KalmanConfig, TrackingConfig, config_from_dict
+from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig, config_from_dict
+from wfviz.io.clip import Frame
 from wfviz.trackers.gewc import GEWCTracker
+from wfviz.trackers.gewc.config import GEWCConfig
+from wfviz.tracking import confirmation, kalman
 from wfviz.tracking import TrackManager, extrapolate
 
 
@@ -371,7 +372,7 @@ def test_sprt_confirms_a_steady_mover_with_significant_novel_hits():
     got = [e for e in events if e.kind == "confirmed"]
     assert len(got) == 1 and len(mgr) == 1 and mgr.states()[0].confirmed
     tc, th = TrackingConfig(), mgr.thresholds
-    per_hit = float(track_score.change_evidence(np.array([10.0]), mgr.detection_threshold,
+    per_hit = float(confirmation.change_evidence(np.array([10.0]), mgr.detection_threshold,
                                                 tc.static_change_rate, tc.target_change_rate)[0])
     assert per_hit > 0
     assert got[0].frame + 1 >= np.ceil(th.confirm / per_hit)  # hits so far (born in frame 0)
@@ -404,10 +405,10 @@ def test_sprt_drops_faint_hits_in_a_cluttered_gate():
     assert [e.kind for e in events if e.kind != "born"] == ["confirmed"]
 
 
-def _misses_to_delete(th: track_score.Thresholds, p_detect: float) -> int:
+def _misses_to_delete(th: confirmation.Thresholds, p_detect: float) -> int:
     """Consecutive misses that take a confirmed track (score capped at ``th.confirm``) in a
     clean gate (p_fa = 0) to ``th.delete``, in exact arithmetic (a tie deletes: score <= delete)."""
-    miss = float(track_score.score_change(np.array([False]), p_detect, np.array([0.0]))[0])
+    miss = float(confirmation.score_change(np.array([False]), p_detect, np.array([0.0]))[0])
     return int(np.ceil((th.confirm - th.delete) / -miss - 1e-9))
 
 
@@ -417,7 +418,7 @@ def _misses_to_delete(th: track_score.Thresholds, p_detect: float) -> int:
 ])
 def test_sprt_deletes_a_confirmed_track_after_a_bounded_number_of_misses(p_lost):
     """A confirmed mover that stops being detected is deleted at exactly the miss at which its
-    score falls ln(1 / p_lost) below confirmation (track_score.thresholds), not before."""
+    score falls ln(1 / p_lost) below confirmation (confirmation.thresholds), not before."""
     tcfg = TrackingConfig(p_lost=p_lost)
     events, mgr = _sprt_run(_MOVER[:10] + [None] * 10, tcfg=tcfg)
     confirmed = [e.frame for e in events if e.kind == "confirmed"]
@@ -431,7 +432,7 @@ def test_sprt_deletes_a_confirmed_track_after_a_bounded_number_of_misses(p_lost)
 
 def test_sprt_deletion_bound_follows_p_lost():
     """The bound grows with ln(1 / p_lost): a smaller p_lost keeps a lost track longer."""
-    th = [track_score.thresholds(1.0, 1.0, 0.01, p) for p in (0.05, 0.005, 0.0002)]
+    th = [confirmation.thresholds(1.0, 1.0, 0.01, p) for p in (0.05, 0.005, 0.0002)]
     n = [_misses_to_delete(t, 0.9) for t in th]
     assert n == sorted(n) and n[0] < n[-1]
     assert all(t.delete < t.confirm for t in th)
@@ -446,7 +447,7 @@ def test_gate_threshold_is_at_most_k_and_falls_with_p_gate():
     half = np.array([[3.0, 3.0], [8.0, 5.0], [15.0, 15.0]])
     area = (2 * half[:, 0] + 1) * (2 * half[:, 1] + 1)
     k = 4.0
-    rows = [track_score.gate_threshold(half, p, k) for p in (0.001, 0.01, 0.05, 0.2)]
+    rows = [confirmation.gate_threshold(half, p, k) for p in (0.001, 0.01, 0.05, 0.2)]
     for t in rows:
         assert t.shape == (3,) and (t <= k).all()
         assert (np.diff(t) >= 0).all()  # a larger gate needs a higher threshold
@@ -456,7 +457,7 @@ def test_gate_threshold_is_at_most_k_and_falls_with_p_gate():
     below = t < k
     assert below.any()
     assert np.allclose(area[below] * norm.sf(t[below]), 0.05)
-    assert np.allclose(track_score.gate_threshold(half, 1e-9, k), k)  # clipped to k
+    assert np.allclose(confirmation.gate_threshold(half, 1e-9, k), k)  # clipped to k
 
 
 def test_every_event_of_every_tracker_has_a_declared_kind():

@@ -7,7 +7,7 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wfviz.frames import Clip
+from wfviz.io.frames import Clip
 from wfviz.trackers import Tracker
 
 

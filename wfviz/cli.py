@@ -17,10 +17,10 @@ from rich.console import Console
 from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from wfviz.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
 from wfviz.config import ConfigError, config_to_toml
-from wfviz.frames import Clip
-from wfviz.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
+from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
+from wfviz.io.frames import Clip
+from wfviz.io.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
@@ -383,7 +383,7 @@ def eval_(
     result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
     out.print(format_table(result), highlight=False, markup=False)
     if json_out is not None:
-        from wfviz.outputs import write_atomically
+        from wfviz.io.outputs import write_atomically
         write_atomically(json_out, json.dumps(result.to_dict(), indent=2) + "\n")
         out.print(f"  json: {json_out}", highlight=False, markup=False)
 

@@ -12,10 +12,10 @@ from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from wfviz.clip import MIN_SIDE, check_frame_size
 from wfviz.evaluate import EvalResult, Points, evaluate_points, frame_errors
-from wfviz.frames import Clip, Frame, read_ahead
-from wfviz.outputs import OutputError, TracksWriter, check_writable, replace_into, temp_path
+from wfviz.io.clip import MIN_SIDE, check_frame_size
+from wfviz.io.frames import Clip, Frame, read_ahead
+from wfviz.io.outputs import OutputError, TracksWriter, check_writable, replace_into, temp_path
 from wfviz.trackers import Tracker
 from wfviz.trackers.base import FrameResult
 
@@ -87,7 +87,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     """Track ``clip`` frames ``start <= index < stop``; write outputs atomically.
 
     Outputs are written to unique temporary files beside them
-    (:func:`wfviz.outputs.temp_path`) and renamed when the run ends. SIGINT and SIGTERM
+    (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends. SIGINT and SIGTERM
     (and a KeyboardInterrupt raised elsewhere) stop the run after the current frame: the
     frames done are flushed, the recording is closed and renamed, ``interrupted`` and
     ``signal`` are set. On any error, or when no frame was processed, the partial files are

@@ -14,10 +14,10 @@ import pyarrow as pa
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.clip import ClipNote
 from wfviz.evaluate import FrameErrors
-from wfviz.frames import Frame
-from wfviz.horizon import horizon_confident
+from wfviz.io.clip import ClipNote
+from wfviz.io.frames import Frame
+from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import EventKind
 
@@ -364,7 +364,7 @@ class Recorder:
     def log_front_end(self, result: FrameResult, images: bool) -> None:
         """The shared front end's noise map (``suppressed/noise``, with the images), the camera
         motion (``registration/*``) and the sequential test's levels (``tracks/*``), for trackers
-        whose results carry them (:mod:`wfviz.front_end`)."""
+        whose results carry them (:mod:`wfviz.stages.front_end`)."""
         noise = getattr(result, "noise", None)
         if noise is not None:
             # with the images, when re-estimated (noise.every frames; the viewer shows the latest);

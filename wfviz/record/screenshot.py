@@ -20,7 +20,7 @@ import time
 from pathlib import Path
 from typing import IO, TYPE_CHECKING
 
-from wfviz.outputs import write_atomically
+from wfviz.io.outputs import write_atomically
 
 if TYPE_CHECKING:
     from rerun.experimental import Timeline, ViewerClient

@@ -8,8 +8,8 @@ import rerun.blueprint as rrb
 
 from wfviz.evaluate import FrameErrors
 from wfviz.record.recorder import Recorder, class_ids, track_colors
-from wfviz.starfield.metrics import paper_scores
 from wfviz.trackers.starfield import CANDIDATE_STATUS, StarfieldResult
+from wfviz.trackers.starfield.metrics import paper_scores
 
 STAR_COLOR = (120, 190, 255, 160)
 UNPAIRED_COLOR = (200, 200, 200, 160)

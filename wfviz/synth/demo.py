@@ -17,7 +17,7 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
 from wfviz.synth.psf import add_gaussian_spot
 
 WIDTH, HEIGHT = 640, 512
@@ -193,7 +193,7 @@ def _noise_sigma(background: np.ndarray) -> np.ndarray:
 
 
 class DemoClip:
-    """The demo clip (implements ``wfviz.frames.Clip``), rendered lazily frame by frame."""
+    """The demo clip (implements ``wfviz.io.frames.Clip``), rendered lazily frame by frame."""
 
     def __init__(self, seed: int = 0, n_frames: int = PATH_FRAMES) -> None:
         if seed < 0 or n_frames < 1:

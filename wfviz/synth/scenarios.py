@@ -1,7 +1,7 @@
 """Scenario library with exact truth: clips modelled on the four methods' test sequences.
 
 ``list_scenarios()`` describes them, ``make_scenario(name)`` builds a lazily rendered
-``ScenarioClip`` (a ``wfviz.frames.Clip``), ``write_scenario`` saves 16-bit PNGs, truth.csv
+``ScenarioClip`` (a ``wfviz.io.frames.Clip``), ``write_scenario`` saves 16-bit PNGs, truth.csv
 and meta.json (optionally an 8-bit AVI). Coordinates: x = column, y = row, origin at the
 centre of the top-left pixel. Truth = projection of each target's 3-D position at the
 frame's time, exactly where its spot is rendered.
@@ -21,8 +21,8 @@ from typing import NamedTuple
 import cv2
 import numpy as np
 
-from wfviz.frames import Frame
-from wfviz.outputs import remove_stale, temp_dir
+from wfviz.io.frames import Frame
+from wfviz.io.outputs import remove_stale, temp_dir
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
 from wfviz.synth.scene import (Flight, SceneSpec, Target, add_noise, add_spot, add_spots,
                                render_background, to_uint16)
@@ -115,7 +115,7 @@ class _Design:
 
 
 class ScenarioClip:
-    """A scenario rendered lazily frame by frame (implements ``wfviz.frames.Clip``).
+    """A scenario rendered lazily frame by frame (implements ``wfviz.io.frames.Clip``).
 
     Frame ``i`` is the static background (+ jittered field stars) + target spots + noise
     seeded by (seed, i), so any frame renders alone and identically on every pass.

@@ -7,12 +7,16 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any, NamedTuple
 
-from wfviz.config import FusionConfig, GEWCConfig, StarfieldConfig, TBDConfig, load_config
+from wfviz.config import load_config
 from wfviz.trackers.base import FrameResult, Tracker
 from wfviz.trackers.fusion import FusionTracker
+from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.gewc import GEWCTracker
+from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.trackers.starfield import StarfieldTracker
+from wfviz.trackers.starfield.config import StarfieldConfig
 from wfviz.trackers.tbd import TBDTracker
+from wfviz.trackers.tbd.config import TBDConfig
 
 class TrackerEntry(NamedTuple):
     """One registered tracker: its class, its config class and its recorder adapter

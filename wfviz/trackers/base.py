@@ -3,11 +3,13 @@
 from __future__ import annotations
 
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
-from wfviz.detection import Detections
-from wfviz.frames import Frame
+from wfviz.io.frames import Frame
+from wfviz.stages.detection import Detections
 from wfviz.tracking import Prediction, TrackEvent, TrackState
 
 
@@ -36,8 +38,10 @@ class Tracker(Protocol):
 
 
 class StageTimer:
-    """Milliseconds per stage: :meth:`lap` adds the time since the previous lap to ``stage``
-    (stages may repeat); :meth:`done` adds ``total`` since creation and returns the dict."""
+    """Milliseconds per stage, the one timer of every tracker: :meth:`lap` adds the time since
+    the previous lap to ``stage`` (stages may repeat), :meth:`skip` leaves time uncounted,
+    :meth:`inner` times a stage nested in the current lap (and leaves it out of that lap);
+    :meth:`done` adds ``total`` since creation and returns the dict."""
 
     def __init__(self, stages: tuple[str, ...] = ()) -> None:
         self.timings: dict[str, float] = dict.fromkeys(stages, 0.0)
@@ -51,6 +55,17 @@ class StageTimer:
     def skip(self) -> None:
         """Start the next lap now: the time since the last lap is not counted."""
         self._t0 = time.perf_counter()
+
+    @contextmanager
+    def inner(self, stage: str) -> Iterator[None]:
+        """Time the block as ``stage``; the lap in progress does not count it."""
+        t0 = time.perf_counter()
+        try:
+            yield
+        finally:
+            dt = time.perf_counter() - t0
+            self.timings[stage] = self.timings.get(stage, 0.0) + dt * 1e3
+            self._t0 += dt
 
     def done(self) -> dict[str, float]:
         self.timings["total"] = (time.perf_counter() - self._start) * 1e3

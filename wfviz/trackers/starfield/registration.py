@@ -39,7 +39,7 @@ import cv2
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wfviz.config import RegistrationConfig
+from wfviz.trackers.starfield.config import RegistrationConfig
 
 _EMPTY2 = np.zeros((0, 2))
 

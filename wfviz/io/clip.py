@@ -36,7 +36,7 @@ from typing import Literal
 import cv2
 import numpy as np
 
-from wfviz.frames import Clip, Frame
+from wfviz.io.frames import Clip, Frame
 
 VIDEO_SUFFIXES = (".avi", ".mkv", ".mov", ".mp4")
 IMAGE_SUFFIXES = (".bmp", ".png", ".tif", ".tiff")

@@ -11,7 +11,7 @@ from collections.abc import Iterable
 from pathlib import Path
 from typing import TextIO
 
-from wfviz.clip import IMAGE_SUFFIXES
+from wfviz.io.clip import IMAGE_SUFFIXES
 from wfviz.tracking import TrackState
 
 TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]

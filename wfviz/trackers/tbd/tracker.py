@@ -2,7 +2,7 @@
 
 Per frame: normalise the frame (background and noise sigma from the data), choose the regions
 (the whole frame, fixed tiles, or windows around candidates of a temporally integrated matched
-filter), run each region's bank of particle filters PF_0..PF_N_max (:mod:`wfviz.tbd.filter`),
+filter), run each region's bank of particle filters PF_0..PF_N_max (:mod:`wfviz.trackers.tbd.filter`),
 then turn the estimated states of the most probable count into tracks with stable ids.
 The equations are in docs/pipeline.md ("The track-before-detect tracker").
 """
@@ -10,22 +10,21 @@ The equations are in docs/pipeline.md ("The track-before-detect tracker").
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, field
 
 import cv2
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from wfviz.config import TBDConfig
-from wfviz.detection import Detections
-from wfviz.frames import Frame
-from wfviz.horizon import HorizonTracker, search_region
-from wfviz.imaging_circle import ImagingMask
-from wfviz.tbd.background import PixelBackground
-from wfviz.tbd.filter import BankOutput, RegionFilter
-from wfviz.tbd.model import matched_filter, normalise, texture_normalise
-from wfviz.trackers.base import FrameResult
+from wfviz.io.frames import Frame
+from wfviz.stages.detection import Detections
+from wfviz.stages.horizon import HorizonTracker, search_region
+from wfviz.stages.imaging_circle import ImagingMask
+from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.tbd.background import PixelBackground
+from wfviz.trackers.tbd.config import TBDConfig
+from wfviz.trackers.tbd.filter import BankOutput, RegionFilter
+from wfviz.trackers.tbd.model import matched_filter, normalise, texture_normalise
 from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackState
 
 STAGES = ("normalise", "candidates", "predict", "likelihood", "count", "estimate", "resample", "tracks")
@@ -184,7 +183,7 @@ class TBDTracker:
     def _normalise(self, img: np.ndarray) -> tuple[np.ndarray, float, np.ndarray | None]:
         """(y, sigma, texture) by ``model.background``: "temporal" (per-pixel running
         background, per-tile noise from frame differences, hot pixels excluded:
-        :mod:`wfviz.tbd.background`; over tiles and windows y is then divided by its local RMS as
+        :mod:`wfviz.trackers.tbd.background`; over tiles and windows y is then divided by its local RMS as
         for "local"), or the single-frame "global" / "local" estimates of :func:`normalise`."""
         mc = self.config.model
         method = self._background()
@@ -276,8 +275,7 @@ class TBDTracker:
         img = frame.image
         if img.ndim == 3:
             img = img.mean(axis=2)
-        timings = {s: 0.0 for s in STAGES}
-        t_start = time.perf_counter()
+        timer = StageTimer(STAGES)
         if self._shape != img.shape:
             self._setup(img.shape)
         y, sigma, texture = self._normalise(img)
@@ -286,8 +284,7 @@ class TBDTracker:
         if sky is not None:  # no evidence outside the search region
             y[~sky] = 0.0
             t[~sky] = 0.0
-        t1 = time.perf_counter()
-        timings["normalise"] = (t1 - t_start) * 1e3
+        timer.lap("normalise")
         dets = empty_detections(img.shape)
         if self._mode == "candidates":
             xy, score = self._candidates(t, texture, frame.index)
@@ -295,7 +292,7 @@ class TBDTracker:
             dets = Detections(xy, np.ones(n, dtype=np.int64), score, t[xy[:, 1].astype(int), xy[:, 0].astype(int)]
                               if n else np.zeros(0), np.column_stack([xy - 1, np.full((n, 2), 3)]).astype(np.int64),
                               np.arange(1, n + 1), dets.labels, float(c.regions.candidate_k))
-        timings["candidates"] = (time.perf_counter() - t1) * 1e3
+        timer.lap("candidates")
 
         estimates: list[tuple] = []  # x, y, vx, vy, amplitude, std_x, std_y, confirmed, region
         particles = []
@@ -303,7 +300,7 @@ class TBDTracker:
         count = 0
         for b in self.banks:
             ys, xs = slice(b.y0, b.y0 + b.height), slice(b.x0, b.x0 + b.width)
-            out = b.filter.step(np.ascontiguousarray(y[ys, xs]), t[ys, xs], timings)
+            out = b.filter.step(np.ascontiguousarray(y[ys, xs]), t[ys, xs], timer)
             b.last = out
             p = out.p
             b.quiet = b.quiet + 1 if p[0] >= c.regions.close_p0 else 0
@@ -319,7 +316,7 @@ class TBDTracker:
                 pts[:, 0] += b.x0
                 pts[:, 1] += b.y0
                 particles.append(pts)
-        t2 = time.perf_counter()
+        timer.skip()  # the bank loop's own bookkeeping belongs to no stage
         self._hold = self._hold_mask(img.shape, estimates)
         tracks, preds, events, amps, stds = self._associate(frame.index, estimates, c)
         changed = count != self._count
@@ -328,8 +325,8 @@ class TBDTracker:
             events.append(TrackEvent(frame.index, EventKind.COUNT, -1,
                                      f"target count estimate {self._count} -> {count} (P = {pc:.2f})"))
         self._count = count
-        timings["tracks"] = (time.perf_counter() - t2) * 1e3
-        timings["total"] = (time.perf_counter() - t_start) * 1e3
+        timer.lap("tracks")
+        timings = timer.done()
         regions = tuple(Region(b.region_id, b.x0, b.y0, b.width, b.height, b.kind,
                                b.last.count if b.last else 0, float(b.last.p[0]) if b.last else 1.0)
                         for b in self.banks)

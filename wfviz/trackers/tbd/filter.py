@@ -15,12 +15,12 @@ from __future__ import annotations
 
 import itertools
 import math
-import time
 from dataclasses import dataclass
 
 import numpy as np
-from wfviz.config import TBDConfig
-from wfviz.tbd.model import likelihood
+from wfviz.trackers.base import StageTimer
+from wfviz.trackers.tbd.config import TBDConfig
+from wfviz.trackers.tbd.model import likelihood
 
 BIRTH, CONT, DEATH = 0, 1, 2
 
@@ -208,18 +208,14 @@ class RegionFilter:
         return self._propagate(p)
 
     # -- one frame -----------------------------------------------------------------------------
-    def step(self, y: np.ndarray, t: np.ndarray, timings: dict[str, float] | None = None) -> BankOutput:
+    def step(self, y: np.ndarray, t: np.ndarray, timer: StageTimer | None = None) -> BankOutput:
         """Filter one frame of the region (normalised pixels ``y``, matched filter ``t``)."""
         cfg, N = self.cfg, self.nmax
         mc = cfg.model
         rows, cols = self.shape
-        timings = timings if timings is not None else {}
-        clock = [time.perf_counter()]
-
-        def lap(stage: str) -> None:
-            now = time.perf_counter()
-            timings[stage] = timings.get(stage, 0.0) + (now - clock[0]) * 1e3
-            clock[0] = now
+        timer = timer if timer is not None else StageTimer()
+        timer.skip()  # the time since the caller's last lap belongs to no stage of the filter
+        lap = timer.lap
 
         # 1. the three sets of every PF_n (n = 0 has no target: its ratio is 1)
         sets: list[list[tuple[int, Particles, np.ndarray]]] = []

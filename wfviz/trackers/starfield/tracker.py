@@ -1,30 +1,29 @@
 """The star-field tracker (``--tracker starfield``): dim moving targets among stars in
 telescope frames whose background jitters (Gao Jianwei et al. 2012).
 
-Per frame: segmentation into star points (:mod:`wfviz.starfield.segmentation`), pairing with
-the previous frame's points and registration (:mod:`wfviz.starfield.registration`), candidate
+Per frame: segmentation into star points (:mod:`wfviz.trackers.starfield.segmentation`), pairing with
+the previous frame's points and registration (:mod:`wfviz.trackers.starfield.registration`), candidate
 filtering (unpaired points that are not known stars, sensor defects or at the border), target
-chains with Kalman filters (:mod:`wfviz.starfield.chains`). Chains live in the reference
+chains with Kalman filters (:mod:`wfviz.trackers.starfield.chains`). Chains live in the reference
 frame (the first frame processed); tracks are reported in each frame's image coordinates.
 """
 
 from __future__ import annotations
 
 import math
-import time
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wfviz.config import StarfieldConfig
-from wfviz.detection import Detections
-from wfviz.frames import Frame
-from wfviz.starfield.chains import (NEW, OUT, PREDICTED, RUN, STAR_LATER, Candidates, Chain, ChainManager,
-                                    Found, Redetection)
-from wfviz.starfield.registration import Registration, apply, register
-from wfviz.starfield.segmentation import Segmentation, noise_at, resegment, segment
+from wfviz.io.frames import Frame
+from wfviz.stages.detection import Detections
 from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.starfield.chains import (NEW, OUT, PREDICTED, RUN, STAR_LATER, Candidates, Chain, ChainManager,
+                                    Found, Redetection)
+from wfviz.trackers.starfield.config import StarfieldConfig
+from wfviz.trackers.starfield.registration import Registration, apply, register
+from wfviz.trackers.starfield.segmentation import Segmentation, noise_at, resegment, segment
 from wfviz.tracking import Prediction, TrackState
 
 # why an unpaired point is or is not a candidate
@@ -56,7 +55,7 @@ class StarfieldResult(FrameResult):
     what backtracking found in earlier frames); ``predicted``: ids of tracks whose reported
     position is a prediction; ``chain_points``: (chain id, frame, u, v, kind) of Run and Out
     chains' points added or changed this frame (all of a chain's points when it is promoted),
-    from which :func:`wfviz.starfield.metrics.paper_scores` counts the paper's p_d;
+    from which :func:`wfviz.trackers.starfield.metrics.paper_scores` counts the paper's p_d;
     ``residual``: the smoothed background-subtracted frame (the detection map) with its robust
     std ``noise_sigma``; ``defects``: flagged sensor positions (x, y).
     """
@@ -228,8 +227,8 @@ class StarfieldTracker:
     def step(self, frame: Frame) -> StarfieldResult:
         """Run every stage on one frame."""
         c = self.config
-        timer = StageTimer()
-        lap, timings = timer.lap, timer.timings
+        timer = StageTimer(("segment", "register", "candidates", "chains", "resegment"))
+        lap = timer.lap
         k, shape = frame.index, frame.image.shape[:2]
         seg = segment(frame.image, c.segmentation)
         pts = seg.points
@@ -272,14 +271,9 @@ class StarfieldTracker:
         for f in [f for f in self._stored if f <= k - self._keep]:
             del self._stored[f]
         lap("candidates")
-        reseg_ms = 0.0
-
         def reseg(chain: Chain, f: int, pred: np.ndarray) -> Found | None:
-            nonlocal reseg_ms
-            ts = time.perf_counter()
-            out = self._resegment(chain, f, pred)
-            reseg_ms += (time.perf_counter() - ts) * 1e3
-            return out
+            with timer.inner("resegment"):
+                return self._resegment(chain, f, pred)
 
         m.predict()
         preds = self._predictions(k, to_img)
@@ -287,8 +281,6 @@ class StarfieldTracker:
         if prev is not None:
             events, redets = m.step(cands, shape, lambda p: apply(to_img, p), reseg)
         lap("chains")
-        timings["chains"] -= reseg_ms
-        timings["resegment"] = reseg_ms
         self._prev = (pts, self._to_ref.copy())
         self._prev_optical = optical
         return self._result(frame, seg, reg, paired, segments, unpaired, status, to_ref, to_img, preds,

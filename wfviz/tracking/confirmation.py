@@ -93,7 +93,7 @@ def position_score(innovation: np.ndarray, S_inv: np.ndarray, half: np.ndarray) 
 
 def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
                     cap: float = EVIDENCE_CAP) -> np.ndarray:
-    """ln of the likelihood ratio of a hit's significance z (local noise σ, :mod:`wfviz.noise`):
+    """ln of the likelihood ratio of a hit's significance z (local noise σ, :mod:`wfviz.stages.noise`):
     a target's significance is taken uniform in ln z between the detection threshold ``k`` (per
     hit where a gate was searched deeper, :func:`gate_threshold`) and ``z_max``; noise that
     crossed the threshold is Gaussian beyond it, density φ(z) / Q(k). A hit just above a lowered

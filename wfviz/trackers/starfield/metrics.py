@@ -21,7 +21,7 @@ from collections.abc import Iterable
 from dataclasses import dataclass
 
 from wfviz.evaluate import Points, frame_errors
-from wfviz.starfield.chains import PREDICTED, Chain
+from wfviz.trackers.starfield.chains import PREDICTED, Chain
 
 ChainPointRow = tuple[int, int, float, float, str]  # chain id, frame, u, v, kind
 

@@ -5,34 +5,49 @@ associates, measures and manages tracks.
 
 Order and stages (docs/pipeline.md):
 
-1. ``defects``: flagged hot and dead pixels replaced (:mod:`wfviz.defects`).
-2. ``mask``: the imaging circle of a fisheye lens and the frame border (:mod:`wfviz.imaging_circle`).
+1. ``defects``: flagged hot and dead pixels replaced (:mod:`wfviz.stages.defects`).
+2. ``mask``: the imaging circle of a fisheye lens and the frame border (:mod:`wfviz.stages.imaging_circle`).
 3. ``horizon``: the sky–ground line, re-estimated every ``horizon.every`` frames
-   (:mod:`wfviz.horizon`); the search region and its zones follow from it.
-4. ``camera``: the scene's offset in the image (:mod:`wfviz.registration`).
-5. ``suppress``: the paper's 5 × 5 background suppression (:mod:`wfviz.background`).
-6. ``noise``: the residual's local level and noise σ (:mod:`wfviz.noise`).
+   (:mod:`wfviz.stages.horizon`); the search region and its zones follow from it.
+4. ``camera``: the scene's offset in the image (:mod:`wfviz.stages.registration`).
+5. ``suppress``: the paper's 5 × 5 background suppression (:mod:`wfviz.stages.background`).
+6. ``noise``: the residual's local level and noise σ (:mod:`wfviz.stages.noise`).
 7. ``change``: what is new at each place in the scene, in its own noise σ
-   (:class:`wfviz.background.TemporalBackground`).
-8. ``detect``: components above ``k_sigma`` in either significance (:func:`wfviz.detection.detect`).
+   (:class:`wfviz.stages.background.TemporalBackground`).
+8. ``detect``: components above ``k_sigma`` in either significance (:func:`wfviz.stages.detection.detect`).
 """
 
 from __future__ import annotations
 
 from collections.abc import Callable
 from dataclasses import dataclass, replace
+from typing import Protocol
 
 import cv2
 import numpy as np
 
-from wfviz.background import TemporalBackground, change as scene_change, gain, suppress_background
-from wfviz.config import GEWCConfig
-from wfviz.defects import BadPixels
-from wfviz.detection import Detections, detect, sample_at, score_detections
-from wfviz.horizon import Horizon, HorizonTracker, search_zones
-from wfviz.imaging_circle import ImagingCircle, ImagingMask
-from wfviz.noise import NoiseEstimate, NoiseModel, TailCalibration
-from wfviz.registration import CameraMotion, CameraState
+from wfviz.config import (CircleConfig, DefectsConfig, DetectionConfig, HorizonConfig, NoiseConfig,
+                          SuppressionConfig, TrackingConfig)
+from wfviz.stages.background import TemporalBackground, change as scene_change, gain, suppress_background
+from wfviz.stages.defects import BadPixels
+from wfviz.stages.detection import Detections, detect, sample_at, score_detections
+from wfviz.stages.horizon import Horizon, HorizonTracker, search_zones
+from wfviz.stages.imaging_circle import ImagingCircle, ImagingMask
+from wfviz.stages.noise import NoiseEstimate, NoiseModel, TailCalibration
+from wfviz.stages.registration import CameraMotion, CameraState
+
+
+class FrontEndConfig(Protocol):
+    """The sections of a tracker's configuration the front end reads (GEWC's and fusion's both
+    have them)."""
+
+    defects: DefectsConfig
+    circle: CircleConfig
+    horizon: HorizonConfig
+    suppression: SuppressionConfig
+    noise: NoiseConfig
+    detection: DetectionConfig
+    tracking: TrackingConfig
 
 
 SPATIAL_OVERALL = False  # the residual's tail calibration holds a floor over the whole frame
@@ -87,9 +102,9 @@ def _unknown_at(change: np.ndarray, pixels: np.ndarray) -> np.ndarray:
 class FrontEnd:
     """Streams frames through the shared stages (module docstring). ``config`` needs the
     sections ``defects``, ``circle``, ``horizon``, ``suppression``, ``noise``, ``detection`` and
-    ``tracking`` (for ``compensate_motion`` and the shape test) of :class:`GEWCConfig`."""
+    ``tracking`` (for ``compensate_motion`` and the shape test): :class:`FrontEndConfig`."""
 
-    def __init__(self, config: GEWCConfig) -> None:
+    def __init__(self, config: FrontEndConfig) -> None:
         c = self.config = config
         self.bad = BadPixels(c.defects)
         self.imaging = ImagingMask(c.circle)
@@ -126,7 +141,7 @@ class FrontEnd:
         frame's threshold over the whole search region); the temporal background still learns every
         frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
         ``k_map(camera)``: called once the camera motion is known, the detection threshold of
-        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.detection.detect`)."""
+        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -199,7 +214,7 @@ class FrontEnd:
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
-        """Change significance of every pixel (:class:`wfviz.background.TemporalBackground`):
+        """Change significance of every pixel (:class:`wfviz.stages.background.TemporalBackground`):
         the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
         clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's
         sampled peak depends on where it falls between pixels), against the scene's past, in

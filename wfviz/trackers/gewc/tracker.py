@@ -6,19 +6,19 @@ from dataclasses import dataclass
 
 import numpy as np
 
-from wfviz.centroid import measure_many
-from wfviz.clutter import StaticClutter
-from wfviz.config import GEWCConfig
-from wfviz.detection import Detections
-from wfviz.frames import Frame
-from wfviz.front_end import FrontEnd
-from wfviz.horizon import Horizon
-from wfviz.imaging_circle import ImagingCircle
-from wfviz.noise import NoiseEstimate
-from wfviz.registration import CameraState
-from wfviz.track_score import DetectionDensity, Thresholds, gate_threshold
+from wfviz.io.frames import Frame
+from wfviz.stages.centroid import measure_many
+from wfviz.stages.clutter import StaticClutter
+from wfviz.stages.detection import Detections
+from wfviz.stages.front_end import FrontEnd
+from wfviz.stages.horizon import Horizon
+from wfviz.stages.imaging_circle import ImagingCircle
+from wfviz.stages.noise import NoiseEstimate
+from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import TrackManager
+from wfviz.tracking.confirmation import DetectionDensity, Thresholds, gate_threshold
 
 
 @dataclass(frozen=True)
@@ -139,7 +139,7 @@ class GEWCTracker:
 
     def _gate_thresholds(self, preds: list) -> np.ndarray | None:
         """Per prediction, the threshold (σ) its gate is searched at: lower for confirmed tracks
-        not in meeting mode (:func:`wfviz.track_score.gate_threshold`, ``tracking.gate_false_alarm``),
+        not in meeting mode (:func:`wfviz.tracking.confirmation.gate_threshold`, ``tracking.gate_false_alarm``),
         ``detection.k_sigma`` for the others; None when no gate looks deeper."""
         c = self.config
         if c.tracking.confirm != "sprt":

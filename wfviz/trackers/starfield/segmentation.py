@@ -27,9 +27,9 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from wfviz.config import StarSegmentationConfig
-from wfviz.detection import Detections
-from wfviz.noise import fill_missing, tile_statistics, upsample
+from wfviz.stages.detection import Detections
+from wfviz.stages.noise import fill_missing, tile_statistics, upsample
+from wfviz.trackers.starfield.config import StarSegmentationConfig
 
 _SAMPLE = 8  # every 8th row and column for the robust statistics
 DEAD_SIGMA = 5.0  # a pixel this many robust stds below its 3x3 median is a dead pixel
@@ -174,7 +174,7 @@ def local_noise(smoothed: np.ndarray, tile: int, smooth_sigma: float, clip: floa
     grown by the reach of a smoothed point source (3 * sqrt(2) * ``smooth_sigma`` px, the
     matched filter's size standing in for the PSF's), so neither a star's core nor its wing
     enters the statistics. The rest gives a clipped median and std per ``tile`` x ``tile``
-    tile (:func:`wfviz.noise.tile_statistics`; tiles with too few free pixels take their
+    tile (:func:`wfviz.stages.noise.tile_statistics`; tiles with too few free pixels take their
     nearest neighbour's), bilinearly interpolated to every pixel."""
     level0, sigma0 = robust_stats(smoothed)
     r = max(1, int(math.ceil(3.0 * math.sqrt(2.0) * max(smooth_sigma, 0.5))))

@@ -8,7 +8,7 @@ import cv2
 import numpy as np
 
 from wfviz.config import DetectionConfig
-from wfviz.noise import NoiseEstimate
+from wfviz.stages.noise import NoiseEstimate
 
 
 @dataclass(frozen=True)
@@ -169,7 +169,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     """Threshold ``residual`` inside ``region`` and label 8-connected components.
 
     ``cfg.mode``: "cfar" thresholds at ``level + k_sigma · sigma`` of the local ``noise``
-    estimate (:mod:`wfviz.noise`) and gives each detection its significance, the peak's
+    estimate (:mod:`wfviz.stages.noise`) and gives each detection its significance, the peak's
     ``(residual - level) / sigma``; "global" at mean + k·std of the whole region (the paper),
     where ``zones`` (masks partitioning the region, e.g. sky and ground) each get their own
     threshold; "local" at the mean + k·std of a ``local_window`` box.
@@ -180,7 +180,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     largest change significance among its pixels, and its centroid weighs each pixel by how far
     the larger of the two exceeds ``k_sigma``. ``k_map`` (cfar only; float32, the frame's
     shape): the threshold in σ of every pixel instead of ``k_sigma`` (lower in the gates of
-    confirmed tracks, :func:`wfviz.track_score.gate_threshold`).
+    confirmed tracks, :func:`wfviz.tracking.confirmation.gate_threshold`).
     """
     res = residual
     z_of = None  # (level, sigma) maps when significance comes from the noise estimate

@@ -1,6 +1,6 @@
 """Per-pixel background and noise of the track-before-detect likelihood, estimated from the data.
 
-The likelihood of :mod:`wfviz.tbd.model` needs y = (z - b) / sigma with y ~ N(0, 1) where there
+The likelihood of :mod:`wfviz.trackers.tbd.model` needs y = (z - b) / sigma with y ~ N(0, 1) where there
 is no target. Neither b nor sigma is assumed:
 
 * **background b** (per pixel): a running mean of the frames (rate 1/k over the first frames,
@@ -44,7 +44,7 @@ from dataclasses import dataclass
 import cv2
 import numpy as np
 
-from wfviz.noise import upsample
+from wfviz.stages.noise import upsample
 
 _MAD = 1.4826
 
@@ -94,7 +94,7 @@ class PixelBackground:
         self.frames = 0
 
     def _upsample(self, grid: np.ndarray, shape: tuple[int, int]) -> np.ndarray:
-        """Tile grid -> pixels, bilinear between tile centres (:func:`wfviz.noise.upsample`)."""
+        """Tile grid -> pixels, bilinear between tile centres (:func:`wfviz.stages.noise.upsample`)."""
         return np.ascontiguousarray(upsample(grid, shape, self.tile))
 
     @staticmethod

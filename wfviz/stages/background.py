@@ -50,7 +50,7 @@ class TemporalBackground:
     def update(self, residual: np.ndarray, offset: np.ndarray | tuple[float, float],
                moving: bool = False) -> np.ndarray | None:
         """This frame's background (float32, or None on the first frame); then remembers it.
-        ``offset``: the camera's (:class:`wfviz.registration.CameraState`); ``moving``: it has
+        ``offset``: the camera's (:class:`wfviz.stages.registration.CameraState`); ``moving``: it has
         moved (from then on the moving-camera background is used)."""
         r = np.asarray(residual, dtype=np.float32)
         off = np.asarray(offset, dtype=np.float64)

@@ -47,8 +47,8 @@ from dataclasses import dataclass, field
 import numpy as np
 from scipy.spatial import cKDTree
 
-from wfviz import kalman
-from wfviz.config import ChainConfig, StarKalmanConfig, StarTrackingConfig
+from wfviz.trackers.starfield.config import ChainConfig, StarKalmanConfig, StarTrackingConfig
+from wfviz.tracking import kalman
 from wfviz.tracking import EventKind, TrackEvent
 
 DETECTED, REDETECTED, PREDICTED = "detected", "redetected", "predicted"

@@ -18,8 +18,8 @@ from enum import StrEnum
 import numpy as np
 from scipy.optimize import linear_sum_assignment
 
-from wfviz import kalman, track_score
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
+from wfviz.tracking import confirmation, kalman
 
 
 @dataclass(frozen=True)
@@ -98,7 +98,7 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
 
 
 HISTORY = 3  # reported positions kept per track: eq. 15 reads s(k-1) and s(k-3)
-MOTION_HISTORY = 32  # measured scene positions kept per track for the motion test (track_score)
+MOTION_HISTORY = 32  # measured scene positions kept per track for the motion test (confirmation)
 TEST_MEMORY = 0.9  # weight of the past in the running mean of tentative tracks tested per frame
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
@@ -128,7 +128,7 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         innovation=np.full((n, 2), np.nan),     # NaN: not updated this frame
         clutter=np.zeros(n),                    # mean of the hits' static-clutter labels (_add_clutter)
         clutter_known=np.zeros(n, dtype=np.int64),  # hits with a decided label
-        score=np.zeros(n),                      # sequential test against noise (track_score), nats
+        score=np.zeros(n),                      # sequential test against noise (confirmation), nats
         clutter_score=np.zeros(n),              # test against static clutter: sum of clutter_hits
         clutter_hits=np.zeros((n, MOTION_HISTORY)),  # its evidence from the last hits, oldest first
         motion_t=np.zeros((n, MOTION_HISTORY)),  # frames of the measured scene positions
@@ -202,7 +202,7 @@ class TrackManager:
         self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
         self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
         self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
-        self.thresholds: track_score.Thresholds | None = None  # this frame's (confirm = "sprt")
+        self.thresholds: confirmation.Thresholds | None = None  # this frame's (confirm = "sprt")
         self.detection_threshold = detection_threshold
 
     def __len__(self) -> int:
@@ -402,14 +402,14 @@ class TrackManager:
         ``scores`` / ``birth_scores``: the significance of each measurement / birth; a track is
         confirmed at ``confirm_hits`` hits when its mean significance also reaches
         ``confirm_significance`` (0 = hits only, as in the paper). ``shapes`` / ``birth_shapes``:
-        the blobness of each (:func:`wfviz.detection.blobness`); a track is confirmed only when its
+        the blobness of each (:func:`wfviz.stages.detection.blobness`); a track is confirmed only when its
         hits' mean reaches ``confirm_blobness`` (0 = not used). ``clutter`` /
-        ``birth_clutter``: static-clutter labels (:mod:`wfviz.clutter`; 1 static, 0 not, NaN
+        ``birth_clutter``: static-clutter labels (:mod:`wfviz.stages.clutter`; 1 static, 0 not, NaN
         undecided) under ``clutter_rule`` (:class:`~wfviz.config.ClutterConfig`): a track needs
         ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
         ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
         above ``delete_static`` is deleted. ``gate_k``: the threshold (σ) each track's gate was
-        searched at (:func:`wfviz.track_score.gate_threshold`); where it is below the frame's, a
+        searched at (:func:`wfviz.tracking.confirmation.gate_threshold`); where it is below the frame's, a
         hit's false-alarm probability is at least ``tracking.gate_false_alarm`` and its
         significance is scored from there. Returns the frame's events (including meeting events
         from :meth:`predict`).
@@ -526,7 +526,7 @@ class TrackManager:
     def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
                     nov: np.ndarray, gate_k: np.ndarray | None = None
                     ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """The two sequential tests of :mod:`wfviz.track_score` (``tracking.confirm = "sprt"``):
+        """The two sequential tests of :mod:`wfviz.tracking.confirmation` (``tracking.confirm = "sprt"``):
         ``score`` against noise (hits and misses, where the hits lie in the gate) and
         ``clutter_score`` against static clutter (how significant and how new the hits are).
         ``density``: false detections per pixel at each track; ``z``, ``nov``: each hit's
@@ -534,25 +534,25 @@ class TrackManager:
         both reach the confirmation level."""
         tc = self.tcfg
         n = len(self)
-        th = track_score.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
+        th = confirmation.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
                                     tc.beta, tc.p_lost)
         self.thresholds = th
         halves = self._pred_arrays[1] if len(self._pred_arrays) and len(self._pred_arrays[1]) == n \
             else np.full((n, 2), self.kcfg.gate_max)
         lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
-        p_fa = track_score.gate_false_alarm(lam, halves)
+        p_fa = confirmation.gate_false_alarm(lam, halves)
         deep = gate_k is not None and len(gate_k) == n
         k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), self.detection_threshold) if deep
                   else np.full(n, self.detection_threshold))
         if deep:  # where the gate was searched deeper, noise puts a hit there this often
             p_fa = np.where(k_gate < self.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
-        change = track_score.score_change(measured, tc.p_detect, p_fa)
+        change = confirmation.score_change(measured, tc.p_detect, p_fa)
         clutter = np.zeros(n)
         m = np.nonzero(measured)[0]
         if m.size:
-            change[m] += track_score.position_score(self.innovation[m], self._S_inv[m], halves[m])
-            change[m] += track_score.amplitude_score(z[m], k_gate[m])
-            clutter[m] = track_score.change_evidence(nov[m], self.detection_threshold,
+            change[m] += confirmation.position_score(self.innovation[m], self._S_inv[m], halves[m])
+            change[m] += confirmation.amplitude_score(z[m], k_gate[m])
+            clutter[m] = confirmation.change_evidence(nov[m], self.detection_threshold,
                                                      tc.static_change_rate, tc.target_change_rate)
         # a meeting track takes no measurement: no evidence while a detection lies near its
         # extrapolation, a miss when none does (it has lost its target)
@@ -567,7 +567,7 @@ class TrackManager:
         confirm = measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm)
         if tc.require_motion and confirm.any():
             r = np.nonzero(confirm)[0]
-            mo = track_score.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
+            mo = confirmation.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
                                     tc.position_noise)
             confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
         tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
@@ -658,13 +658,13 @@ class TrackManager:
         if self.tcfg.confirm == "sprt":  # the birth detection is a hit in the next frame's first gate
             half = self._birth_half
             lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
-            p_fa = track_score.gate_false_alarm(lam, np.repeat(half, k, axis=0))
-            new["score"][:] = track_score.score_change(np.ones(k, dtype=bool), self.tcfg.p_detect, p_fa)
+            p_fa = confirmation.gate_false_alarm(lam, np.repeat(half, k, axis=0))
+            new["score"][:] = confirmation.score_change(np.ones(k, dtype=bool), self.tcfg.p_detect, p_fa)
             if birth_scores is not None:
                 zb = np.asarray(birth_scores, dtype=np.float64)
-                new["score"] += track_score.amplitude_score(zb, self.detection_threshold)
+                new["score"] += confirmation.amplitude_score(zb, self.detection_threshold)
                 if birth_novelty is not None:
-                    new["clutter_hits"][:, -1] = track_score.change_evidence(
+                    new["clutter_hits"][:, -1] = confirmation.change_evidence(
                         np.asarray(birth_novelty, dtype=np.float64), self.detection_threshold,
                         self.tcfg.static_change_rate, self.tcfg.target_change_rate)
                     new["clutter_score"][:] = new["clutter_hits"][:, -1]

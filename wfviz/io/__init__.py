@@ -1,0 +1,2 @@
+"""Input and output: clip readers (:mod:`.clip`), the frame and clip types (:mod:`.frames`),
+safe output files (:mod:`.outputs`)."""

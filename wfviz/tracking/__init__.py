@@ -1,0 +1,9 @@
+"""Track management shared by the trackers: the constant-velocity Kalman filter (:mod:`.kalman`),
+the sequential confirmation and deletion tests (:mod:`.confirmation`) and the track manager
+(:mod:`.manager`) with its track state, predictions and lifecycle events."""
+
+from wfviz.tracking.manager import (EventKind, Prediction, TrackEvent, TrackManager, TrackState,
+                                    assign_confirmed_first, extrapolate)
+
+__all__ = ["EventKind", "Prediction", "TrackEvent", "TrackManager", "TrackState", "assign_confirmed_first",
+           "extrapolate"]
