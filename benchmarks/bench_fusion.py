@@ -26,7 +26,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import FusionConfig  # noqa: E402
+from wfviz.trackers.fusion.config import FusionConfig  # noqa: E402
 from wfviz.trackers.fusion import FusionTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

@@ -27,7 +27,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import StarfieldConfig  # noqa: E402
+from wfviz.trackers.starfield.config import StarfieldConfig  # noqa: E402
 from wfviz.io.frames import Frame  # noqa: E402
 from wfviz.trackers.starfield import segmentation as seg  # noqa: E402
 from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402

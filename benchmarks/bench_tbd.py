@@ -25,7 +25,7 @@ from pathlib import Path  # noqa: E402
 import cv2  # noqa: E402
 import numpy as np  # noqa: E402
 
-from wfviz.config import TBDConfig  # noqa: E402
+from wfviz.trackers.tbd.config import TBDConfig  # noqa: E402
 from wfviz.trackers.tbd import STAGES, TBDTracker  # noqa: E402
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))

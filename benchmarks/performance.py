@@ -44,6 +44,7 @@ import numpy as np  # noqa: E402
 from wfviz.config import config_to_toml  # noqa: E402
 from wfviz.io.clip import open_clip  # noqa: E402
 from wfviz.io.frames import Frame  # noqa: E402
+from wfviz.synth.clip import GeneratedClip  # noqa: E402
 from wfviz.run import run  # noqa: E402
 from wfviz.synth.demo import demo_clip  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
@@ -65,7 +66,7 @@ TRACKER_CASES = {
 }
 
 
-class MemoryClip:
+class MemoryClip(GeneratedClip):
     """Frames held in memory (benchmark only): a ``Clip`` without decoding."""
 
     def __init__(self, name: str, frames: list[Frame], fps: float) -> None:

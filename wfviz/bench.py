@@ -1,68 +1,38 @@
-"""Per-stage timing of a tracker on a clip: decoding and each stage measured separately."""
+"""Per-stage timing of a tracker on a clip: the drive loop (:func:`wfviz.run.drive`) without
+read-ahead, so decoding and each stage are measured separately, and nothing written."""
 
 from __future__ import annotations
 
-import time
 from dataclasses import dataclass
 
-import numpy as np
-
 from wfviz.io.frames import Clip
-from wfviz.trackers import Tracker
-
-
-@dataclass(frozen=True)
-class StageTiming:
-    """Milliseconds per frame for one stage: median, mean, 95th percentile."""
-
-    stage: str
-    median: float
-    mean: float
-    p95: float
+from wfviz.run import drive
+from wfviz.sinks import StageTiming, TimingSink
+from wfviz.trackers.base import Tracker
 
 
 @dataclass(frozen=True)
 class BenchResult:
-    """Frames timed, the decoding cost and each tracker stage's cost (``total`` last)."""
+    """Frames timed, the decoding cost and each tracker stage's cost (``total`` last); the
+    signal that stopped the run early (None: it ran to the end)."""
 
     frames: int
     shape: tuple[int, int]
     decode: StageTiming
     stages: tuple[StageTiming, ...]
-
-
-def _timing(stage: str, values: list[float]) -> StageTiming:
-    a = np.asarray(values, dtype=np.float64)
-    return StageTiming(stage, float(np.median(a)), float(a.mean()), float(np.percentile(a, 95)))
+    signal: int | None = None
 
 
 def bench(clip: Clip, tracker: Tracker, start: int = 0, stop: int | None = None,
           warmup: int = 3) -> BenchResult:
-    """Run ``tracker`` over ``clip`` once, timing decoding and every stage it reports."""
-    decode: list[float] = []
-    per_stage: dict[str, list[float]] = {}
-    frames = clip.frames(start, stop)
-    n = 0
-    shape = (0, 0)
-    while True:
-        t0 = time.perf_counter()
-        frame = next(frames, None)
-        t_decode = (time.perf_counter() - t0) * 1e3
-        if frame is None:
-            break
-        result = tracker.step(frame)
-        n += 1
-        shape = frame.image.shape
-        if n <= warmup:
-            continue
-        decode.append(t_decode)
-        for stage, ms in result.timings.items():
-            per_stage.setdefault(stage, []).append(ms)
-    if not decode:
-        raise ValueError(f"{clip.name}: need more than {warmup} frames to time (got {n})")
-    order = [s for s in per_stage if s != "total"] + (["total"] if "total" in per_stage else [])
-    return BenchResult(len(decode), shape, _timing("decode", decode),
-                       tuple(_timing(s, per_stage[s]) for s in order))
+    """Run ``tracker`` over ``clip`` once, timing decoding and every stage it reports (the
+    first ``warmup`` frames left out)."""
+    timing = TimingSink(warmup)
+    summary = drive(clip, tracker, [timing], start=start, stop=stop, ahead=False)
+    if not timing.decode:
+        raise ValueError(f"{clip.name}: need more than {warmup} frames to time (got {timing.seen})")
+    decode, stages = timing.timings()
+    return BenchResult(len(timing.decode), timing.shape, decode, stages, summary.signal)
 
 
 def format_bench(result: BenchResult, tracker: str) -> str:

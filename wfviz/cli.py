@@ -141,8 +141,8 @@ def _clip_inputs(clip: Clip | None) -> tuple[list[tuple[Path, str]], list[Path]]
     """((file, what it is), image folders) a clip reads."""
     if clip is None:
         return [], []
-    path = getattr(clip, "path", None)
-    files = [(Path(f), f"frame {i} of the input clip") for i, f in enumerate(getattr(clip, "files", None) or [])]
+    path = clip.path
+    files = [(Path(f), f"frame {i} of the input clip") for i, f in enumerate(clip.files)]
     if files:
         return files, [Path(path)] if path is not None else []
     return ([(Path(path), "the input clip")] if path is not None else []), []
@@ -174,7 +174,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     options = None
     if recording is not None:
         options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
-                       trail_length=getattr(getattr(tracker.config, "tracking", None), "trail_length", 60),
+                       trail_length=tracker.config.tracking.trail_length,
                        jpeg_quality=jpeg_quality)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
@@ -302,7 +302,6 @@ def demo(
     jpeg_quality: JpegOpt = None,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
-    from wfviz.evaluate import read_truth
     from wfviz.synth.demo import demo_clip
 
     trk = _tracker("gewc", config)
@@ -322,7 +321,7 @@ def demo(
         temp.unlink(missing_ok=True)
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
-                       source=f"built-in demo (seed {seed}, {frames} frames)", truth=read_truth(truth),
+                       source=f"built-in demo (seed {seed}, {frames} frames)", truth=clip.truth_points(),
                        jpeg_quality=jpeg_quality)
     out.print(f"  truth:     {truth}", highlight=False, markup=False)
     _report(summary, tracks, output)
@@ -434,6 +433,10 @@ def bench_(
     source = open_clip(clip, fps=fps)
     result = bench(source, trk, start=start, stop=stop)
     out.print(format_bench(result, tracker), highlight=False, markup=False)
+    if result.signal is not None:
+        out.print(f"[yellow]interrupted by {signal.Signals(result.signal).name}[/] after {result.frames} timed frames",
+                  highlight=False)
+        raise typer.Exit(128 + result.signal)
 
 
 @app.command("config")

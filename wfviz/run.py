@@ -1,23 +1,26 @@
-"""Drive a tracker over a clip, feeding each frame's result to the sinks (CSV, recording)."""
+"""The drive loop: a tracker over a clip, each frame's result fed to the sinks
+(:mod:`wfviz.sinks`: tracks CSV, recording, scores against truth, progress, timing). ``wfviz
+record``, ``track``, ``demo`` (through :func:`run`) and ``bench`` (:mod:`wfviz.bench`) all use it."""
 
 from __future__ import annotations
 
+import dataclasses
 import signal
 import threading
 import time
-from collections.abc import Callable, Iterator
-from contextlib import contextmanager
-from dataclasses import dataclass
+from collections.abc import Callable, Generator, Iterator, Sequence
+from dataclasses import dataclass, replace
 from pathlib import Path
 from types import FrameType
 from typing import Any
 
-from wfviz.evaluate import EvalResult, Points, evaluate_points, frame_errors
+from wfviz.config import HorizonConfig, SuppressionConfig
+from wfviz.evaluate import EvalResult, Points
 from wfviz.io.clip import MIN_SIDE, check_frame_size
 from wfviz.io.frames import Clip, Frame, read_ahead
-from wfviz.io.outputs import OutputError, TracksWriter, check_writable, replace_into, temp_path
-from wfviz.trackers import Tracker
-from wfviz.trackers.base import FrameResult
+from wfviz.io.outputs import check_writable
+from wfviz.sinks import CallbackSink, RecordingSink, RunEnd, ScoreSink, Sink, Step, TracksSink
+from wfviz.trackers.base import FrameResult, Tracker, TrackerConfig
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -68,167 +71,125 @@ class StopSignals:
         self._old.clear()
 
 
-def min_frame_side(config: Any) -> int:
-    """Smallest frame side the configured windows fit in (16 px with the defaults)."""
+def min_frame_side(config: TrackerConfig | None) -> int:
+    """Smallest frame side the configured windows fit in (16 px with the defaults): the
+    background suppression's window and the horizon's ground-side variance window below the
+    edge, for the trackers whose configuration has those sections."""
     side = MIN_SIDE
-    suppression = getattr(config, "suppression", None)
-    if suppression is not None:
-        side = max(side, int(suppression.size))
-    horizon = getattr(config, "horizon", None)
-    if horizon is not None and horizon.enabled:  # ground-side variance window below the edge
-        side = max(side, int(horizon.variance_window) // 2 + int(horizon.step) + 2)
+    sections = [getattr(config, f.name) for f in dataclasses.fields(config)] if dataclasses.is_dataclass(config) else []
+    for section in sections:
+        if isinstance(section, SuppressionConfig):
+            side = max(side, int(section.size))
+        elif isinstance(section, HorizonConfig) and section.enabled:
+            side = max(side, int(section.variance_window) // 2 + int(section.step) + 2)
     return side
+
+
+def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0, stop: int | None = None,
+          ahead: bool = True) -> RunSummary:
+    """The one loop: frames ``start <= index < stop`` of ``clip`` through ``tracker``, each
+    :class:`~wfviz.sinks.Step` to every sink in order, then every sink's ``finish`` (or, on an
+    error, every sink's ``abort``, and the error goes on).
+
+    ``ahead`` decodes frames in a background thread while the tracker works
+    (:func:`wfviz.io.frames.read_ahead`); without it a step's ``wait_ms`` is the decoding time.
+    SIGINT and SIGTERM (and a KeyboardInterrupt raised by a sink) stop the run after the current
+    frame; the sinks then finish with the frames done. No frame in the range: ValueError.
+    """
+    source = str(clip.path) if clip.path is not None else clip.name
+    check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+    frames, confirmed, first, last = 0, set(), None, None
+    tracker_ms = 0.0
+    with StopSignals() as signals:
+        t_start = time.perf_counter()
+        stream = read_ahead(clip.frames(start, stop)) if ahead else _generator(clip.frames(start, stop))
+        try:
+            while True:
+                t0 = time.perf_counter()
+                frame = next(stream, None)
+                t1 = time.perf_counter()
+                if frame is None or signals.signum is not None:  # a signal while reading: no new frame
+                    break
+                result = tracker.step(frame)
+                step = Step(frame, result, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
+                tracker_ms += step.step_ms
+                confirmed.update(t.track_id for t in result.tracks if t.confirmed)
+                for sink in sinks:
+                    sink.step(step)
+                frames += 1
+                first = frame.index if first is None else first
+                last = frame.index
+                if signals.signum is not None:
+                    break
+        except KeyboardInterrupt:  # not installed (other thread) or raised by a sink
+            signals.signum = signals.signum or signal.SIGINT
+        except BaseException:
+            _abort(sinks)
+            raise
+        finally:
+            stream.close()
+        if frames == 0 and signals.signum is None:
+            _abort(sinks)
+            raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
+        end = RunEnd(frames, signals.signum)
+        try:
+            for sink in sinks:
+                sink.finish(end)
+        except BaseException:
+            _abort(sinks)
+            raise
+    return RunSummary(frames, time.perf_counter() - t_start, tracker_ms / max(frames, 1), tuple(sorted(confirmed)),
+                      signals.signum is not None, None, signals.signum, tuple(sorted(clip.skipped)), first, last)
 
 
 def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recording: Path | None = None,
         recorder_options: dict | None = None, start: int = 0, stop: int | None = None,
         truth: tuple[Points, Points] | None = None, gate: float = 3.0,
         on_frame: Callable[[Frame, FrameResult], None] | None = None) -> RunSummary:
-    """Track ``clip`` frames ``start <= index < stop``; write outputs atomically.
+    """Track ``clip`` frames ``start <= index < stop`` with the usual sinks (what ``wfviz
+    record``, ``track`` and ``demo`` run): the tracks CSV, the recording, scores against
+    ``truth`` (visible, hidden points from :func:`wfviz.evaluate.read_truth`, or a synthetic
+    clip's :meth:`truth_points`) and ``on_frame``.
 
     Outputs are written to unique temporary files beside them
-    (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends. SIGINT and SIGTERM
-    (and a KeyboardInterrupt raised elsewhere) stop the run after the current frame: the
-    frames done are flushed, the recording is closed and renamed, ``interrupted`` and
-    ``signal`` are set. On any error, or when no frame was processed, the partial files are
-    removed (no frames: ValueError). ``truth`` (visible, hidden points from
-    :func:`wfviz.evaluate.read_truth`) adds per-frame errors to the recording and final scores
-    over the frames processed.
+    (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends; on a signal the frames
+    done are kept (``interrupted`` and ``signal`` set), on any error, or when no frame was
+    processed, the partial files are removed (no frames: ValueError).
     """
-    source = getattr(clip, "path", clip.name)
-    check_frame_size(clip.shape, source, min_frame_side(getattr(tracker, "config", None)))
-    with StopSignals() as signals:
-        for p in (tracks_csv, recording):
-            if p is not None:
-                check_writable(p)
-        writer = TracksWriter(tracks_csv) if tracks_csv is not None else None
-        recorder = None
-        rec_temp = None
-        try:
-            if recording is not None:
-                from wfviz.record import open_recorder  # rerun is imported only when recording
-                rec_temp = temp_path(recording)
-                recorder = open_recorder(tracker.name, rec_temp, **(recorder_options or {}))
-        except BaseException:
-            if writer is not None:
-                writer.abort()
-            if rec_temp is not None:
-                rec_temp.unlink(missing_ok=True)
-            raise
-        frames, confirmed, interrupted = 0, set(), False
-        shown, hidden = truth if truth is not None else ({}, {})
-        done: list[int] = []
-        tracked: Points = {}
-        log_skipped = _SkipLog(clip)
-        first = last = None
-        t_start = time.perf_counter()
-        tracker_s = 0.0
-        stream = read_ahead(clip.frames(start, stop))
-        try:
-            for frame in stream:
-                if signals.signum is not None:  # arrived while reading: start no new frame
-                    break
-                t0 = time.perf_counter()
-                result = tracker.step(frame)
-                tracker_s += time.perf_counter() - t0
-                confirmed.update(t.track_id for t in result.tracks if t.confirmed)
-                if writer is not None:
-                    writer.write(frame.index, result.tracks)
-                if recorder is not None:
-                    with _recording_errors(recording):
-                        recorder.log(frame, result)
-                        log_skipped(recorder)
-                if truth is not None:
-                    pts = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
-                    tracked[frame.index] = pts
-                    done.append(frame.index)
-                    if recorder is not None:
-                        f = frame.index
-                        errors = frame_errors(pts, shown.get(f, []), gate, hidden.get(f, []))
-                        recorder.log_truth(shown.get(f, []), hidden.get(f, []), errors)
-                frames += 1
-                first = frame.index if first is None else first
-                last = frame.index
-                if on_frame is not None:
-                    on_frame(frame, result)
-                if signals.signum is not None:
-                    break
-        except KeyboardInterrupt:  # not installed (other thread) or raised by a callback
-            signals.signum = signals.signum or signal.SIGINT
-        except BaseException:
-            _abort(writer, recorder, rec_temp)
-            raise
-        finally:
-            getattr(stream, "close", lambda: None)()
-        interrupted = signals.signum is not None
-        if frames == 0 and not interrupted:
-            _abort(writer, recorder, rec_temp)
-            raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
-        try:
-            scores = None
-            if truth is not None and done:
-                span = set(done)
-                scores = evaluate_points(tracked, {f: v for f, v in shown.items() if f in span}, gate,
-                                         {f: v for f, v in hidden.items() if f in span})
-            if writer is not None:
-                writer.close()
-                writer = None
-            if recorder is not None:
-                if scores is not None:
-                    from wfviz.evaluate import format_table
-                    recorder.log_scores(format_table(scores))
-                log_skipped(recorder)
-                if interrupted:
-                    name = signal.Signals(signals.signum).name  # type: ignore[arg-type]
-                    recorder.log_message(f"interrupted by {name} after {frames} frames", level="WARN")
-                with _recording_errors(recording):
-                    recorder.close()
-                replace_into(rec_temp, recording)  # type: ignore[arg-type]
-        except BaseException:
-            _abort(writer, None, rec_temp)
-            raise
-    seconds = time.perf_counter() - t_start
-    skipped = tuple(sorted(getattr(clip, "skipped", None) or ()))
-    return RunSummary(frames, seconds, tracker_s * 1e3 / max(frames, 1), tuple(sorted(confirmed)),
-                      interrupted, scores, signals.signum, skipped, first, last)
-
-
-class _SkipLog:
-    """Logs each new skipped-input problem of the clip once in the recording's ``log``."""
-
-    def __init__(self, clip: Clip) -> None:
-        self.skipped: dict[int, str] | None = getattr(clip, "skipped", None)
-        self.seen = 0
-        self.reported: set[str] = set()
-
-    def __call__(self, recorder: Any) -> None:
-        if not self.skipped or len(self.skipped) == self.seen:
-            return
-        self.seen = len(self.skipped)
-        for problem in dict.fromkeys(self.skipped.values()):
-            if problem not in self.reported:
-                self.reported.add(problem)
-                recorder.log_message(f"skipped: {problem}", level="WARN")
-
-
-@contextmanager
-def _recording_errors(recording: Path | None) -> Iterator[None]:
-    """Rerun's file writer failing (a full disk: "File-writer thread shut down prematurely") as
-    a one-line OutputError naming the recording."""
+    source = str(clip.path) if clip.path is not None else clip.name
+    check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+    for p in (tracks_csv, recording):
+        if p is not None:
+            check_writable(p)
+    sinks: list[Sink] = []
+    score = ScoreSink(truth, gate) if truth is not None else None
     try:
-        yield
-    except RuntimeError as exc:
-        raise OutputError(f"{recording}: cannot write the recording ({exc}; is the disk full?)") from None
+        if score is not None:
+            sinks.append(score)
+        if tracks_csv is not None:
+            sinks.append(TracksSink(tracks_csv))
+        if recording is not None:
+            sinks.append(RecordingSink(recording, tracker.name, clip, recorder_options, score))
+        if on_frame is not None:
+            sinks.append(CallbackSink(on_frame))
+    except BaseException:
+        _abort(sinks)
+        raise
+    summary = drive(clip, tracker, sinks, start=start, stop=stop)
+    return replace(summary, scores=score.scores) if score is not None else summary
 
 
-def _abort(writer: TracksWriter | None, recorder: Any, rec_temp: Path | None) -> None:
-    """Close and remove every partial output."""
-    if writer is not None:
-        writer.abort()
-    if recorder is not None:
-        try:
-            recorder.close()
-        except Exception:  # noqa: BLE001 - the file is removed anyway
-            pass
-    if rec_temp is not None:
-        rec_temp.unlink(missing_ok=True)
+def _generator(frames: Iterator[Frame]) -> Generator[Frame, None, None]:
+    """``frames`` as a generator (closing it closes the source when the source can close)."""
+    try:
+        yield from frames
+    finally:
+        close = getattr(frames, "close", None)  # an Iterator need not be a generator
+        if close is not None:
+            close()
+
+
+def _abort(sinks: Sequence[Sink]) -> None:
+    """Every sink removes what it has written so far."""
+    for sink in sinks:
+        sink.abort()

@@ -28,7 +28,7 @@ from __future__ import annotations
 import itertools
 import math
 import warnings
-from collections.abc import Iterable, Iterator
+from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal
@@ -137,6 +137,8 @@ def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = 
 
 class _ClipBase:
     """Read-only ``Clip`` properties shared by the readers."""
+
+    files: Sequence[Path] = ()  # an image folder's, one per frame
 
     def __init__(self, path: Path, name: str, fps: float, n_frames: int | None,
                  shape: tuple[int, int], nan_as_zero: bool = False) -> None:

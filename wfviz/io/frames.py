@@ -2,8 +2,9 @@
 
 from __future__ import annotations
 
-from collections.abc import Iterator
+from collections.abc import Iterator, Mapping, Sequence
 from dataclasses import dataclass
+from pathlib import Path
 from typing import Protocol, runtime_checkable
 
 import numpy as np
@@ -44,6 +45,21 @@ class Clip(Protocol):
     @property
     def shape(self) -> tuple[int, int]:
         """(rows, columns) of every frame."""
+        ...
+
+    @property
+    def path(self) -> Path | None:
+        """The file or folder read (None: a generated clip); named in error messages."""
+        ...
+
+    @property
+    def files(self) -> Sequence[Path]:
+        """The image files of a folder clip, one per frame (empty for other clips)."""
+        ...
+
+    @property
+    def skipped(self) -> Mapping[int, str]:
+        """Frames left out so far as unreadable, with the problem (``--skip-bad-frames``)."""
         ...
 
     def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:

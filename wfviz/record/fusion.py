@@ -6,7 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, log_geometry, track_color, track_colors
+from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, track_color, track_colors
 from wfviz.trackers.fusion import FusionResult
 from wfviz.tracking import EventKind
 
@@ -31,7 +31,7 @@ class FusionRecorder(Recorder):
 
     def log_stages(self, result: FusionResult, images: bool) -> None:  # type: ignore[override]
         rec = self.rec
-        log_geometry(self.rec, result)
+        self.log_front_end(result, images)
         if images:
             self.image("suppressed/image", result.suppressed)
         f, n = result.features, len(result.features)
@@ -68,5 +68,5 @@ class FusionRecorder(Recorder):
             if x.track_id in confirmed:
                 self.scalar(f"fusion/{x.track_id}/phi", x.phi)
                 self.scalar(f"fusion/{x.track_id}/cost", x.cost)
-        self.log_kalman(result)
+        self.log_kalman(result, result.innovations)
 

@@ -6,7 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
-from wfviz.record.recorder import Recorder, class_ids, log_geometry, track_color, track_colors
+from wfviz.record.recorder import Recorder, class_ids, track_color, track_colors
 from wfviz.trackers.gewc import GEWCResult
 
 
@@ -26,7 +26,7 @@ class GEWCRecorder(Recorder):
 
     def log_stages(self, result: GEWCResult, images: bool) -> None:  # type: ignore[override]
         rec = self.rec
-        log_geometry(rec, result)
+        self.log_front_end(result, images)
         if images:
             self.image("suppressed/image", result.suppressed)
         if result.clutter is not None:  # static clutter stage (clutter.enabled)
@@ -45,4 +45,4 @@ class GEWCRecorder(Recorder):
         for x in m:
             if x.track_id in confirmed:
                 self.bar(f"gewc/{x.track_id}", x.weights, track_color(x.track_id))
-        self.log_kalman(result)
+        self.log_kalman(result, result.innovations)

@@ -18,7 +18,7 @@ from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote
 from wfviz.io.frames import Frame
 from wfviz.stages.horizon import horizon_confident
-from wfviz.trackers.base import FrameResult
+from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
 
 APPLICATION_ID = "wfviz"
@@ -110,9 +110,9 @@ def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.Compone
     return [rr.ComponentColumn(desc, _Batch(tensor)), rr.ComponentColumn(color_desc, _Batch(rgba))]
 
 
-def log_geometry(rec: rr.RecordingStream, result: object) -> None:
+def log_geometry(rec: rr.RecordingStream, result: FrontEndTrackResult) -> None:
     """Non-imaging mask and imaging circle (static, when they change), flagged bad pixels and
-    the horizon (when re-estimated), for trackers whose results carry them."""
+    the horizon (when re-estimated)."""
     if result.mask_changed:
         rec.log("camera/mask", rr.AnnotationContext([
             rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
@@ -310,7 +310,6 @@ class Recorder:
         if images:
             self.image("camera/image", frame.image)
         self._log_common(result)
-        self.log_front_end(result, images)
         self.log_stages(result, images)
         self.frames_logged += 1
         self.columns.end_frame()
@@ -347,11 +346,11 @@ class Recorder:
         """A ``TextLog`` line at the current frame (sent in columns)."""
         self.columns.text(path, *self._now, message, level)
 
-    def log_kalman(self, result: FrameResult) -> None:
-        """``kalman/<id>/innovation`` (tracks updated this frame, for trackers whose results
-        carry innovations) and ``kalman/<id>/cov_trace`` of the confirmed tracks."""
+    def log_kalman(self, result: FrameResult, innovations: dict[int, np.ndarray] | None = None) -> None:
+        """``kalman/<id>/innovation`` (of the tracks updated this frame, when the tracker reports
+        ``innovations``) and ``kalman/<id>/cov_trace`` of the confirmed tracks."""
         confirmed = {t.track_id for t in result.tracks if t.confirmed}
-        for tid, nu in getattr(result, "innovations", {}).items():
+        for tid, nu in (innovations or {}).items():
             if tid in confirmed:
                 self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
         for p in result.predictions:
@@ -361,11 +360,13 @@ class Recorder:
     def log_stages(self, result: FrameResult, images: bool) -> None:
         """Tracker-specific stages; overridden by each tracker's adapter."""
 
-    def log_front_end(self, result: FrameResult, images: bool) -> None:
-        """The shared front end's noise map (``suppressed/noise``, with the images), the camera
-        motion (``registration/*``) and the sequential test's levels (``tracks/*``), for trackers
-        whose results carry them (:mod:`wfviz.stages.front_end`)."""
-        noise = getattr(result, "noise", None)
+    def log_front_end(self, result: FrontEndTrackResult, images: bool) -> None:
+        """What the trackers on the shared front end (:mod:`wfviz.stages.front_end`) report in
+        common: the scene geometry (:func:`log_geometry`), the noise map (``suppressed/noise``,
+        with the images), the camera motion (``registration/*``) and the sequential test's
+        levels (``tracks/*``)."""
+        log_geometry(self.rec, result)
+        noise = result.noise
         if noise is not None:
             # with the images, when re-estimated (noise.every frames; the viewer shows the latest);
             # half precision: a smooth map, and a quarter of the raw frame's bytes
@@ -373,12 +374,12 @@ class Recorder:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), lossless=True)
                 self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
-        camera = getattr(result, "camera", None)
+        camera = result.camera
         if camera is not None:
             self.scalar("registration/dx", camera.shift[0])
             self.scalar("registration/dy", camera.shift[1])
             self.scalar("registration/moving", 1.0 if camera.moving else 0.0)
-        th = getattr(result, "thresholds", None)
+        th = result.thresholds
         if th is not None:
             self.scalar("tracks/confirm_level", th.confirm)
 

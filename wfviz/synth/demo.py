@@ -12,12 +12,12 @@ import math
 from collections.abc import Iterator
 from dataclasses import dataclass
 from pathlib import Path
-from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from wfviz.io.frames import Frame
+from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.psf import add_gaussian_spot
 
 WIDTH, HEIGHT = 640, 512
@@ -34,15 +34,6 @@ PATH_FRAMES = 160  # targets exist only within the first PATH_FRAMES frames
 _AXIS = np.array([0.0, math.cos(ELEVATION), math.sin(ELEVATION)])
 _RIGHT = np.array([1.0, 0.0, 0.0])
 _UP = np.array([0.0, -math.sin(ELEVATION), math.cos(ELEVATION)])
-
-
-class TruthPoint(NamedTuple):
-    """Exact target centre (pixel coordinates) in one frame."""
-
-    frame: int
-    target_id: int
-    x: float
-    y: float
 
 
 @dataclass(frozen=True)
@@ -192,7 +183,7 @@ def _noise_sigma(background: np.ndarray) -> np.ndarray:
     return np.sqrt(READ_NOISE**2 + SHOT_GAIN * signal).astype(np.float32)
 
 
-class DemoClip:
+class DemoClip(GeneratedClip):
     """The demo clip (implements ``wfviz.io.frames.Clip``), rendered lazily frame by frame."""
 
     def __init__(self, seed: int = 0, n_frames: int = PATH_FRAMES) -> None:
@@ -243,11 +234,15 @@ class DemoClip:
         """Exact horizon row at columns ``x`` (NaN outside the circle's horizon span)."""
         return horizon_row(x)
 
-    def truth_at(self, index: int) -> list[TruthPoint]:
-        """Targets present in frame ``index``, by target id."""
-        return [TruthPoint(index, t.target_id, x, y) for t, x, y in self._spots.get(index, [])]
+    def truth_at(self, index: int) -> list[TruthRow]:
+        """Targets present in frame ``index``, by target id (all visible; peak SNR against the
+        noise σ at the rounded centre)."""
+        h, w = self._sigma.shape
+        return [TruthRow(index, t.target_id, x, y,
+                         float(t.peak / self._sigma[min(max(round(y), 0), h - 1), min(max(round(x), 0), w - 1)]), 1)
+                for t, x, y in self._spots.get(index, [])]
 
-    def truth(self) -> list[TruthPoint]:
+    def truth(self) -> list[TruthRow]:
         """Every (frame, target_id, x, y) where a target is present, by frame then id."""
         return [p for f in range(self._n_frames) for p in self.truth_at(f)]
 

@@ -16,13 +16,13 @@ import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
-from typing import NamedTuple
 
 import cv2
 import numpy as np
 
 from wfviz.io.frames import Frame
 from wfviz.io.outputs import remove_stale, temp_dir
+from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
 from wfviz.synth.scene import (Flight, SceneSpec, Target, add_noise, add_spot, add_spots,
                                render_background, to_uint16)
@@ -45,17 +45,6 @@ class ScenarioInfo:
     fps: float
     n_frames: int
     n_targets: int
-
-
-class TruthRow(NamedTuple):
-    """Target ``target_id`` in ``frame``: exact centre, rendered peak SNR, visibility."""
-
-    frame: int
-    target_id: int
-    x: float
-    y: float
-    peak_snr: float
-    visible: int
 
 
 @dataclass(frozen=True)
@@ -114,7 +103,7 @@ class _Design:
     lazy: bool = False  # evaluate targets per frame instead of precomputing the clip
 
 
-class ScenarioClip:
+class ScenarioClip(GeneratedClip):
     """A scenario rendered lazily frame by frame (implements ``wfviz.io.frames.Clip``).
 
     Frame ``i`` is the static background (+ jittered field stars) + target spots + noise

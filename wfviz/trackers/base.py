@@ -8,9 +8,16 @@ from contextlib import contextmanager
 from dataclasses import dataclass
 from typing import Protocol
 
+import numpy as np
+
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
+from wfviz.stages.horizon import Horizon
+from wfviz.stages.imaging_circle import ImagingCircle
+from wfviz.stages.noise import NoiseEstimate
+from wfviz.stages.registration import CameraState
 from wfviz.tracking import Prediction, TrackEvent, TrackState
+from wfviz.tracking.confirmation import Thresholds
 
 
 @dataclass(frozen=True)
@@ -27,10 +34,45 @@ class FrameResult:
     timings: dict[str, float]
 
 
+@dataclass(frozen=True, kw_only=True)
+class FrontEndTrackResult(FrameResult):
+    """What the trackers built on the shared front end (:mod:`wfviz.stages.front_end`: GEWC and
+    fusion) report besides the common fields: the scene geometry (imaging circle and mask,
+    horizon, flagged bad pixels, each with whether it changed this frame), the residual, the
+    tracks' Kalman innovations, and when their stages run the local noise, the camera's motion
+    and the sequential test's levels."""
+
+    circle: ImagingCircle | None
+    mask: np.ndarray
+    mask_changed: bool
+    horizon: Horizon | None
+    horizon_updated: bool
+    bad_pixels: np.ndarray
+    bad_pixels_changed: bool
+    suppressed: np.ndarray
+    innovations: dict[int, np.ndarray]
+    noise: NoiseEstimate | None = None  # detection.mode = "cfar"
+    camera: CameraState | None = None
+    thresholds: Thresholds | None = None  # tracking.confirm = "sprt"
+
+
+class TrailSection(Protocol):
+    """The part of every tracker's ``tracking`` section the drive loop and recorder read."""
+
+    trail_length: int
+
+
+class TrackerConfig(Protocol):
+    """What every tracker's configuration carries (each is a frozen dataclass of sections)."""
+
+    tracking: TrailSection
+
+
 class Tracker(Protocol):
     """A tracker consumes frames in order and reports every stage."""
 
     name: str
+    config: TrackerConfig
 
     def step(self, frame: Frame) -> FrameResult:
         """Process one frame."""

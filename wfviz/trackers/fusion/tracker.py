@@ -40,16 +40,13 @@ import numpy as np
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEnd
-from wfviz.stages.horizon import Horizon
 from wfviz.stages.imaging_circle import ImagingCircle
-from wfviz.stages.noise import NoiseEstimate
-from wfviz.stages.registration import CameraState
-from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.fusion.features import (Features, box_corners, fused_cost, min_area_rects,
                                            scalar_phi)
 from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackManager, assign_confirmed_first
-from wfviz.tracking.confirmation import DetectionDensity, Thresholds
+from wfviz.tracking.confirmation import DetectionDensity
 
 _BIG = 1e9
 DENSE_CROPS = 64  # more search crops than this: one full-frame crop is faster
@@ -68,9 +65,9 @@ class Match:
     recovered: bool
 
 
-@dataclass(frozen=True)
-class FusionResult(FrameResult):
-    """Every stage's output for one frame (the common fields come from FrameResult).
+@dataclass(frozen=True, kw_only=True)
+class FusionResult(FrontEndTrackResult):
+    """Every stage's output for one frame (the common fields come from FrontEndTrackResult).
 
     ``detections`` are the frame's candidates: all components of the global detection on
     global frames, the components found inside the search windows otherwise (their ``xy`` is
@@ -86,18 +83,6 @@ class FusionResult(FrameResult):
     searched: tuple[tuple[int, int, int, int], ...]  # (x0, y0, x1, y1) crops searched
     lost: tuple[Prediction, ...]  # confirmed tracks whose window held no candidate
     recover_radius: float
-    suppressed: np.ndarray
-    circle: ImagingCircle | None
-    mask: np.ndarray
-    mask_changed: bool
-    horizon: Horizon | None
-    horizon_updated: bool
-    innovations: dict[int, np.ndarray]
-    bad_pixels: np.ndarray
-    bad_pixels_changed: bool
-    noise: NoiseEstimate | None = None
-    camera: CameraState | None = None
-    thresholds: Thresholds | None = None
 
 
 @dataclass

@@ -11,14 +11,13 @@ from wfviz.stages.centroid import measure_many
 from wfviz.stages.clutter import StaticClutter
 from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEnd
-from wfviz.stages.horizon import Horizon
 from wfviz.stages.imaging_circle import ImagingCircle
 from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
-from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import TrackManager
-from wfviz.tracking.confirmation import DetectionDensity, Thresholds, gate_threshold
+from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 
 @dataclass(frozen=True)
@@ -32,25 +31,13 @@ class Measurement:
     detection: int
 
 
-@dataclass(frozen=True)
-class GEWCResult(FrameResult):
-    """Every stage's output for one frame (the common fields come from FrameResult)."""
+@dataclass(frozen=True, kw_only=True)
+class GEWCResult(FrontEndTrackResult):
+    """Every stage's output for one frame (the common fields come from FrontEndTrackResult)."""
 
-    circle: ImagingCircle | None
-    mask: np.ndarray
-    mask_changed: bool
-    horizon: Horizon | None
-    horizon_updated: bool
-    suppressed: np.ndarray
     measurements: tuple[Measurement, ...]
-    innovations: dict[int, np.ndarray]
-    bad_pixels: np.ndarray
-    bad_pixels_changed: bool
     camera_shift: tuple[float, float] | None  # (dx, dy) the tracks were moved by (None: not compensated)
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
-    noise: NoiseEstimate | None = None  # detection.mode = "cfar"
-    camera: CameraState | None = None
-    thresholds: Thresholds | None = None  # of the sequential test (tracking.confirm = "sprt")
 
 
 class GEWCTracker:
