@@ -12,7 +12,7 @@ import pytest
 
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 from wfviz.stages.clutter import StaticClutter
-from wfviz.tracking import TrackManager
+from wfviz.tracking import Measurements, TrackManager
 
 GROUND = np.array([[20.0 + 15 * i, 30.0 + 11 * (i % 4)] for i in range(12)])  # 12 fixed spots
 SHAPE = (160, 240)
@@ -166,17 +166,11 @@ def _run(mgr: TrackManager, frames: list[np.ndarray], labels: list[np.ndarray] |
     events = []
     for f, xy in enumerate(frames):
         preds = mgr.predict(f)
-        pairs = mgr.associate(preds, xy)
-        used = np.zeros(len(xy), bool)
-        used[list(pairs.values())] = True
-        born = ~used & ~mgr.claimed(preds, xy)
-        lab = None if labels is None else labels[f]
-        nov = {} if novelty is None else dict(
-            scores={i: 10.0 for i in pairs}, birth_scores=np.full(born.sum(), 10.0),
-            novelty={i: novelty for i in pairs}, birth_novelty=np.full(born.sum(), novelty))
-        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[born],
-                             clutter=None if lab is None else {i: float(lab[d]) for i, d in pairs.items()},
-                             birth_clutter=None if lab is None else lab[born], **nov)
+        n = len(xy)
+        events += mgr.update(mgr.associate(preds, xy), Measurements(
+            xy, significance=None if novelty is None else np.full(n, 10.0),
+            novelty=None if novelty is None else np.full(n, novelty),
+            clutter=None if labels is None else np.asarray(labels[f], dtype=float)))
     return events
 
 
@@ -234,9 +228,8 @@ def test_hits_rule_a_confirmed_track_survives_a_short_static_spell_but_not_a_lon
     assert len(mgr) == 1 and mgr.states()[0].confirmed  # mean 1 - 0.9**3 = 0.27 after three static hits
     for f in range(13, 40):
         preds = mgr.predict(f)
-        pairs = mgr.associate(preds, xy[f])
-        events += mgr.update({i: tuple(xy[f][d]) for i, d in pairs.items()}, np.zeros((0, 2)),
-                             clutter={i: 1.0 for i in pairs})
+        events += mgr.update(mgr.associate(preds, xy[f]), Measurements(xy[f], clutter=np.ones(len(xy[f]))),
+                             start=False)
     deleted = [e for e in events if e.kind == "deleted"]
     # plain mean over 10 labels (0), then 1 - 0.9**n > 0.8 from the 16th static label on
     assert [e.frame for e in deleted] == [25] and "static clutter" in deleted[0].message

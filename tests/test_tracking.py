@@ -15,7 +15,7 @@ from wfviz.io.clip import Frame
 from wfviz.trackers.gewc import GEWCTracker
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import confirmation, kalman
-from wfviz.tracking import TrackManager, extrapolate
+from wfviz.tracking import Measurements, TrackManager, extrapolate
 
 
 def test_one_kalman_step_matches_hand_computation():
@@ -47,11 +47,7 @@ def _run(manager, frames):
     for f, dets in enumerate(frames):
         preds = manager.predict(f)
         xy = np.array(dets, dtype=float).reshape(-1, 2)
-        pairs = manager.associate(preds, xy)
-        used = np.zeros(len(xy), bool)
-        used[list(pairs.values())] = True
-        claimed = manager.claimed(preds, xy)
-        events += manager.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used & ~claimed])
+        events += manager.update(manager.associate(preds, xy), Measurements(xy))  # births: unused, unclaimed
     return events
 
 
@@ -79,10 +75,9 @@ def test_hits_rule_confirmation_waits_for_round_hits_with_confirm_blobness():
         for f in range(10):
             preds = mgr.predict(f)
             xy = np.array([[50 + 1.0 * f, 40.0]])
-            pairs = mgr.associate(preds, xy)
-            born = xy[[i for i in range(len(xy)) if i not in pairs.values()]]
-            events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
-                                 shapes={i: shape for i in pairs}, birth_shapes=np.full(len(born), shape))
+            assoc = mgr.associate(preds, xy)
+            events += mgr.update(assoc, Measurements(xy, blobness=np.full(len(xy), shape)),
+                                 start=~assoc.used())  # births: every unused detection
         got = [e for e in events if e.kind == "confirmed"]
         assert bool(got) == confirmed
         if confirmed:
@@ -103,13 +98,11 @@ def _scored_run(tcfg: TrackingConfig, points: list, shift: tuple[float, float] =
             mgr.shift(*shift)
         preds = mgr.predict(f)
         xy = np.array([] if point is None else [point], dtype=float).reshape(-1, 2)
-        pairs = mgr.associate(preds, xy)
-        born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
+        assoc = mgr.associate(preds, xy)
         lab = None if labels is None else labels[f]
-        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
-                             scores={i: score for i in pairs}, birth_scores=np.full(len(born), score),
-                             clutter=None if lab is None else {i: lab for i in pairs},
-                             birth_clutter=None if lab is None else np.full(len(born), lab))
+        events += mgr.update(assoc, Measurements(xy, significance=np.full(len(xy), score),
+                                                 clutter=None if lab is None else np.full(len(xy), lab)),
+                             start=~assoc.used())
     return events, mgr
 
 
@@ -162,8 +155,8 @@ def _confirmed_track(mgr: TrackManager, frames: int = 8) -> None:
     for f in range(frames):
         preds = mgr.predict(f)
         xy = np.array([[50.0 + f, 40.0]])
-        pairs = mgr.associate(preds, xy)
-        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[len(pairs):])
+        assoc = mgr.associate(preds, xy)
+        mgr.update(assoc, Measurements(xy), start=np.arange(len(xy)) >= len(assoc.pairs))
 
 
 @pytest.mark.parametrize("radius,eligible,kept", [(0.0, True, False), (15.0, True, True),
@@ -177,13 +170,12 @@ def test_hits_rule_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept
     tid = mgr.track_ids[0]
     preds = mgr.predict(8)  # predicted near (58, 40); the target jumped 8 px down
     xy = np.array([[58.0, 48.0]])
-    pairs = mgr.associate(preds, xy)
-    assert pairs == {}  # outside the gate
+    assoc = mgr.associate(preds, xy)
+    assert assoc.pairs == {}  # outside the gate
     if radius > 0:
-        pairs = mgr.reacquire(preds, xy, pairs, np.array([eligible]), radius)
-    born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
-    events = mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born)
-    assert (0 in pairs) == kept
+        assoc = mgr.reacquire(preds, xy, assoc, np.array([eligible]), radius)
+    events = mgr.update(assoc, Measurements(xy), start=~assoc.used())
+    assert (0 in assoc.pairs) == kept
     if kept:
         assert [e.kind for e in events] == ["reacquired"] and "8.0 px from its prediction" in events[0].message
         assert np.abs(mgr.innovations()[tid]).max() < 1e-9  # the filter restarted at the detection
@@ -200,17 +192,17 @@ def test_hits_rule_reacquire_leaves_detections_in_another_confirmed_gate():
     for f in range(8):
         preds = mgr.predict(f)
         xy = np.array([[50.0 + f, 40.0], [50.0 + f, 52.0]])
-        pairs = mgr.associate(preds, xy)
-        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[[j for j in range(2) if j not in pairs.values()]])
+        assoc = mgr.associate(preds, xy)
+        mgr.update(assoc, Measurements(xy), start=~assoc.used())
     assert [(s.confirmed, s.meeting) for s in mgr.states()] == [(True, False)] * 2  # the premise
     preds = mgr.predict(8)
     xy = np.array([[58.0, 52.0], [58.0, 50.0]])  # the second target, and a spot in its gate
-    pairs = mgr.associate(preds, xy)
-    assert pairs == {1: 0} and mgr.claimed(preds, xy).tolist() == [True, True]
-    assert mgr.reacquire(preds, xy, pairs, np.array([True, True]), 15.0) == pairs  # the first takes nothing
+    assoc = mgr.associate(preds, xy)
+    assert assoc.pairs == {1: 0} and assoc.claimed.tolist() == [True, True]
+    assert mgr.reacquire(preds, xy, assoc, np.array([True, True]), 15.0).pairs == assoc.pairs  # the first takes nothing
     # the same spot outside every confirmed gate is re-acquired (the test above can fail)
     far = np.array([[58.0, 52.0], [66.0, 40.0]])
-    assert mgr.reacquire(preds, far, mgr.associate(preds, far), np.array([True, True]), 15.0) == {0: 1, 1: 0}
+    assert mgr.reacquire(preds, far, mgr.associate(preds, far), np.array([True, True]), 15.0).pairs == {0: 1, 1: 0}
 
 
 def _run_from(mgr, frames, a, b):
@@ -218,10 +210,8 @@ def _run_from(mgr, frames, a, b):
     for f in range(a, b):
         preds = mgr.predict(f)
         xy = np.array(frames[f], dtype=float).reshape(-1, 2)
-        pairs = mgr.associate(preds, xy)
-        used = np.zeros(len(xy), bool)
-        used[list(pairs.values())] = True
-        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[~used])
+        assoc = mgr.associate(preds, xy)
+        events += mgr.update(assoc, Measurements(xy), start=~assoc.used())
     return events
 
 
@@ -229,8 +219,8 @@ def test_no_measurement_goes_to_two_tracks():
     mgr = TrackManager(KalmanConfig(), TrackingConfig(safety_distance=0.0))
     _run(mgr, [[(10, 10), (14, 10)]] * 7)
     preds = mgr.predict(7)
-    pairs = mgr.associate(preds, np.array([[12.0, 10.0]]))
-    assert len(pairs) == 1
+    assoc = mgr.associate(preds, np.array([[12.0, 10.0]]))
+    assert len(assoc.pairs) == 1
 
 
 @pytest.mark.parametrize("tcfg", [
@@ -254,13 +244,8 @@ def test_crossing_keeps_both_identities(tcfg):
         dets = [a[f], b[f]] if np.hypot(*(a[f] - b[f])) > 3 else [(a[f] + b[f]) / 2]
         xy = np.array(dets) + rng.normal(0, 0.15, (len(dets), 2))
         preds = mgr.predict(f)
-        pairs = mgr.associate(preds, xy)
-        used = np.zeros(len(xy), bool)
-        used[list(pairs.values())] = True
-        born = ~used & ~mgr.claimed(preds, xy)
-        mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, xy[born],
-                   scores={i: 10.0 for i in pairs}, birth_scores=np.full(born.sum(), 10.0),
-                   novelty={i: 10.0 for i in pairs}, birth_novelty=np.full(born.sum(), 10.0))
+        mgr.update(mgr.associate(preds, xy), Measurements(xy, significance=np.full(len(xy), 10.0),
+                                                          novelty=np.full(len(xy), 10.0)))
         states = [s for s in mgr.states() if s.confirmed]
         meeting_seen |= any(s.meeting for s in states)
         for truth, ids in ((a[f], ids_a), (b[f], ids_b)):
@@ -346,14 +331,12 @@ def _sprt_run(points: list, z: float = 10.0, novelty: float = 10.0, density: flo
     for f, point in enumerate(points):
         preds = mgr.predict(f)
         xy = np.array([] if point is None else [point], dtype=float).reshape(-1, 2)
-        pairs = mgr.associate(preds, xy)
-        born = xy[[j for j in range(len(xy)) if j not in pairs.values()]]
-        nb = len(born)
-        events += mgr.update({i: tuple(xy[d]) for i, d in pairs.items()}, born,
-                             scores={i: z for i in pairs}, birth_scores=np.full(nb, z),
-                             novelty={i: novelty for i in pairs}, birth_novelty=np.full(nb, novelty),
-                             density=None if density is None else np.full(len(preds), density),
-                             birth_density=None if density is None else np.full(nb, density))
+        assoc = mgr.associate(preds, xy)
+        n = len(xy)
+        events += mgr.update(assoc, Measurements(xy, significance=np.full(n, z), novelty=np.full(n, novelty),
+                                                 density=None if density is None else np.full(n, density)),
+                             track_density=None if density is None else np.full(len(preds), density),
+                             start=~assoc.used())
     return events, mgr
 
 
@@ -489,6 +472,10 @@ def test_every_registered_tracker_names_its_tracker_config_and_recorder():
 
     for name, entry in TRACKERS.items():
         assert dataclasses.is_dataclass(entry.config), name
-        assert isinstance(make_tracker(name), entry.tracker)
+        tracker = make_tracker(name)
+        assert isinstance(tracker, entry.tracker) and tracker.name == name
+        assert tracker.config.tracking.trail_length > 0  # what the Tracker protocol promises the loop
+        home = f"wfviz.trackers.{name}."  # one package per tracker: tracker and config live there
+        assert entry.tracker.__module__.startswith(home) and entry.config.__module__.startswith(home), name
         rec = recorder_class(name)
         assert issubclass(rec, Recorder) and rec.__module__.startswith("wfviz.record."), name

@@ -1,18 +1,28 @@
 """Multi-target track management: gating, global assignment, confirmation, deletion, meeting.
 
-Composable steps, called in order each frame: :meth:`TrackManager.predict` (Kalman
-prediction, gates, meeting mode), :meth:`TrackManager.associate` (global assignment of
-detections to tracks inside their gates), :meth:`TrackManager.update` (Kalman updates,
-hit/miss counting, births and deletions). Positions are (x = column, y = row) in pixels.
+The parts, called in this order each frame (in the spirit of Stone Soup's predictor,
+associator, updater, initiator and deleter):
 
-The live tracks are held as arrays, one row per track (struct of arrays): a frame costs a few
-numpy calls whatever the number of tracks, which matters with tens of tentative tracks started
-by noise every frame.
+1. :meth:`TrackManager.predict` (predictor): Kalman prediction, gates, meeting mode (GEWC
+   eq. 15);
+2. :meth:`TrackManager.associate` (associator): global assignment of this frame's
+   :class:`Measurements` to tracks inside their gates, returned as an :class:`Association`; a
+   tracker with its own associator (fusion's fused cost) takes :meth:`TrackManager.gate` and
+   adds its pairs; :meth:`TrackManager.reacquire` may extend it;
+3. :meth:`TrackManager.update` (updater, initiator, deleter): Kalman updates of the associated
+   tracks, hit and miss counting, the confirmation rule (:class:`HitsRule`, the paper's, or
+   :class:`SequentialRule`, :mod:`wfviz.tracking.confirmation`), deletions, and births: every
+   detection left unused and outside a confirmed gate starts a tentative track
+   (:meth:`TrackManager.initiate`, the one place births are decided).
+
+Positions are (x = column, y = row) in pixels. The live tracks are held as arrays, one row per
+track (struct of arrays): a frame costs a few numpy calls whatever the number of tracks, which
+matters with tens of tentative tracks started by noise every frame.
 """
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, replace
 from enum import StrEnum
 
 import numpy as np
@@ -79,6 +89,54 @@ class TrackEvent:
     kind: EventKind
     track_id: int
     message: str
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """This frame's detections as the track manager reads them, one row each: the position and
+    the evidence the confirmation rules use (None: the tracker does not measure it).
+
+    ``significance``: σ above the local noise; ``blobness``: :func:`wfviz.stages.detection.blobness`;
+    ``novelty``: how new the detection is at its place in the scene (σ); ``clutter``: its
+    static-clutter label (:mod:`wfviz.stages.clutter`: 1 static, 0 not, NaN undecided);
+    ``density``: false detections per pixel around it (:class:`~wfviz.tracking.confirmation.DetectionDensity`).
+    """
+
+    xy: np.ndarray
+    significance: np.ndarray | None = None
+    blobness: np.ndarray | None = None
+    novelty: np.ndarray | None = None
+    clutter: np.ndarray | None = None
+    density: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(len(self.xy))
+
+
+@dataclass(frozen=True)
+class Association:
+    """Which detection each track takes this frame (:meth:`TrackManager.associate`), for
+    :meth:`TrackManager.update`.
+
+    ``pairs``: {track row: detection index}, no detection twice; ``nearest``: per track row, the
+    detection nearest its prediction within its gate and 2 ``gate_min`` (-1: none), the evidence
+    of a track in meeting mode, which takes no measurement; ``claimed``: per detection, inside a
+    confirmed track's gate (such a detection starts no track).
+    """
+
+    pairs: dict[int, int]
+    nearest: np.ndarray
+    claimed: np.ndarray
+
+    def with_pairs(self, pairs: dict[int, int]) -> Association:
+        """The same gates with other pairs (a tracker's own associator)."""
+        return replace(self, pairs=dict(pairs))
+
+    def used(self) -> np.ndarray:
+        """Per detection: taken by a track."""
+        out = np.zeros(len(self.claimed), dtype=bool)
+        out[list(self.pairs.values())] = True
+        return out
 
 
 def gone_reason(manager: "TrackManager", i: int, xy: np.ndarray) -> str:
@@ -176,8 +234,164 @@ def assign_confirmed_first(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarr
     return out
 
 
+@dataclass(frozen=True)
+class Evidence:
+    """One frame's evidence about every track (rows as the manager's), for a confirmation rule:
+    measured this frame, missed (not measured and not meeting), moved (px from the birth point,
+    in the scene), reported position, static-clutter labels of the measured and meeting tracks
+    (None: no clutter stage), false detections per pixel at each track, each hit's significance
+    ``z`` and novelty (NaN: none), the thresholds the gates were searched at (None: the frame's)."""
+
+    measured: np.ndarray
+    missed: np.ndarray
+    moved: np.ndarray
+    reported: np.ndarray
+    clutter: dict[int, float] | None
+    density: np.ndarray | None
+    z: np.ndarray
+    novelty: np.ndarray
+    gate_k: np.ndarray | None
+
+
+class HitsRule:
+    """The GEWC paper's rule (Zhang Shuai et al. 2018; ``tracking.confirm = "hits"``): a track is
+    confirmed at ``confirm_hits`` hits, and with the optional tests not in the paper (mean
+    significance, blobness, displacement, movers, static clutter), deleted after
+    ``max_misses`` consecutive misses. Births score nothing."""
+
+    def start(self, mgr: TrackManager, new: dict[str, np.ndarray], birth_scores: np.ndarray | None,
+              birth_density: np.ndarray | None, birth_novelty: np.ndarray | None) -> None:
+        """Initial evidence of the new tracks' rows ``new`` of ``mgr`` (none for this rule)."""
+
+    def decide(self, mgr: TrackManager, e: Evidence) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """(confirm, delete, message per row: the confirmation's reasons, or a deletion's whole
+        message, "" for the usual one)."""
+        measured, missed, moved, reported, clutter = e.measured, e.missed, e.moved, e.reported, e.clutter
+        tc = mgr.tcfg
+        n = len(mgr)
+        need = tc.confirm_significance
+        mean_score = mgr.score_sum / np.maximum(mgr.hits, 1)
+        mean_shape = mgr.shape_sum / np.maximum(mgr.hits, 1)
+        mover = mgr._mover(reported, moved)
+        significant = ((need <= 0) | (mean_score >= need)
+                       | (mover & (mean_score >= tc.confirm_moving_significance)))
+        confirm = (measured & ~mgr.confirmed & (mgr.hits >= tc.confirm_hits)
+                   & significant & (moved >= tc.min_displacement)
+                   & ((tc.confirm_blobness <= 0) | (mean_shape >= tc.confirm_blobness)))
+        delete = missed & (mgr.misses >= tc.max_misses)
+        static = np.zeros(n, dtype=bool)
+        if clutter is not None and mgr.clutter_rule is not None:
+            rule = mgr.clutter_rule
+            judged = mgr.clutter_known >= rule.min_known
+            static = judged & (mgr.clutter > rule.max_static)
+            confirm &= ~static & (judged | (not rule.wait))
+            static &= mgr.confirmed & ~delete & (mgr.clutter > rule.delete_static)
+            delete |= static
+        why = [""] * n
+        for i in np.nonzero(confirm | static)[0].tolist():
+            if static[i]:
+                why[i] = (f"deleted as static clutter (fixed in the scene among many detections: "
+                          f"mean static label {mgr.clutter[i]:.2f})")
+                confirm[i] = False
+                continue
+            w = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
+            if need > 0 and mean_score[i] < need:
+                w += f" (a mover: {moved[i]:.1f} px in a straight line since birth)"
+            w += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
+            w += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
+            why[i] = w
+        return confirm, delete, why
+
+
+class SequentialRule:
+    """Wald's sequential tests of :mod:`wfviz.tracking.confirmation` (not in the paper;
+    ``tracking.confirm = "sprt"``): ``score`` against noise (hits and misses, where the hits lie
+    in the gate, how significant they are) and ``clutter_score`` against static clutter (how new
+    the hits are at their place in the scene). A track is confirmed when both reach the
+    confirmation level, dropped (tentative) or deleted (confirmed) when ``score`` falls to its
+    level; the birth detection counts as a hit in the first gate."""
+
+    def start(self, mgr: TrackManager, new: dict[str, np.ndarray], birth_scores: np.ndarray | None,
+              birth_density: np.ndarray | None, birth_novelty: np.ndarray | None) -> None:
+        """Initial scores of the new tracks' rows ``new`` of ``mgr``."""
+        k = len(new["ids"])
+        half = mgr._birth_half
+        lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
+        p_fa = confirmation.gate_false_alarm(lam, np.repeat(half, k, axis=0))
+        new["score"][:] = confirmation.score_change(np.ones(k, dtype=bool), mgr.tcfg.p_detect, p_fa)
+        if birth_scores is not None:
+            zb = np.asarray(birth_scores, dtype=np.float64)
+            new["score"] += confirmation.amplitude_score(zb, mgr.detection_threshold)
+            if birth_novelty is not None:
+                new["clutter_hits"][:, -1] = confirmation.change_evidence(
+                    np.asarray(birth_novelty, dtype=np.float64), mgr.detection_threshold,
+                    mgr.tcfg.static_change_rate, mgr.tcfg.target_change_rate)
+                new["clutter_score"][:] = new["clutter_hits"][:, -1]
+
+    def decide(self, mgr: TrackManager, e: Evidence) -> tuple[np.ndarray, np.ndarray, list[str]]:
+        """(confirm, delete, message per row); sets ``mgr.thresholds`` to this frame's levels."""
+        measured, density, z, nov, gate_k = e.measured, e.density, e.z, e.novelty, e.gate_k
+        tc = mgr.tcfg
+        n = len(mgr)
+        th = confirmation.thresholds(tc.false_tracks_per_1000, mgr.tested_per_frame or 1.0,
+                                    tc.beta, tc.p_lost)
+        mgr.thresholds = th
+        halves = mgr._pred_arrays[1] if len(mgr._pred_arrays) and len(mgr._pred_arrays[1]) == n \
+            else np.full((n, 2), mgr.kcfg.gate_max)
+        lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
+        p_fa = confirmation.gate_false_alarm(lam, halves)
+        deep = gate_k is not None and len(gate_k) == n
+        k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), mgr.detection_threshold) if deep
+                  else np.full(n, mgr.detection_threshold))
+        if deep:  # where the gate was searched deeper, noise puts a hit there this often
+            p_fa = np.where(k_gate < mgr.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
+        change = confirmation.score_change(measured, tc.p_detect, p_fa)
+        clutter = np.zeros(n)
+        m = np.nonzero(measured)[0]
+        if m.size:
+            change[m] += confirmation.position_score(mgr.innovation[m], mgr._S_inv[m], halves[m])
+            change[m] += confirmation.amplitude_score(z[m], k_gate[m])
+            clutter[m] = confirmation.change_evidence(nov[m], mgr.detection_threshold,
+                                                     tc.static_change_rate, tc.target_change_rate)
+        # a meeting track takes no measurement: no evidence while a detection lies near its
+        # extrapolation, a miss when none does (it has lost its target)
+        change[mgr.meeting & ~measured & (mgr._nearest_now >= 0)] = 0.0
+        mgr.score += change
+        if m.size:  # a window of the last MOTION_HISTORY hits: old evidence does not linger
+            mgr.clutter_hits[m, :-1] = mgr.clutter_hits[m, 1:]
+            mgr.clutter_hits[m, -1] = clutter[m]
+            mgr.clutter_score[m] = mgr.clutter_hits[m].sum(axis=1)
+        conf = mgr.confirmed
+        mgr.score[conf] = np.minimum(mgr.score[conf], th.confirm)
+        confirm = measured & ~conf & (mgr.score >= th.confirm) & (mgr.clutter_score >= th.confirm)
+        if tc.require_motion and confirm.any():
+            r = np.nonzero(confirm)[0]
+            mo = confirmation.motion(mgr.motion_t[r], mgr.motion_xy[r], mgr.motion_ok[r],
+                                    tc.position_noise)
+            confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
+        tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
+        drop = ~conf & (mgr.score <= th.drop + tie)
+        lost = conf & (mgr.score <= th.delete + tie)
+        why = [""] * n
+        for i in np.nonzero(confirm)[0].tolist():
+            why[i] = (f": persistence {mgr.score[i]:.1f} and not clutter {mgr.clutter_score[i]:.1f} "
+                      f">= {th.confirm:.1f}")
+        for i in np.nonzero(drop)[0].tolist():
+            why[i] = (f"dropped: persistence {mgr.score[i]:.1f} fell to {th.drop:.1f} (noise, not a target) "
+                      f"after {mgr.hits[i]} hits")
+        for i in np.nonzero(lost)[0].tolist():
+            why[i] = (f"deleted: score {mgr.score[i]:.1f} fell {th.confirm - mgr.score[i]:.1f} below "
+                      f"confirmation after {mgr.misses[i]} consecutive misses ({mgr.hits[i]} hits)")
+        return confirm, drop | lost, why
+
+
+#: ``tracking.confirm`` -> the confirmation rule it selects
+CONFIRMATION_RULES: dict[str, type] = {"hits": HitsRule, "sprt": SequentialRule}
+
+
 class TrackManager:
-    """Tracks with CV Kalman filters, confirmed after m hits, deleted after n misses.
+    """Tracks with CV Kalman filters (Zhang Shuai et al. 2018, eqs. 8-14), meeting mode (eq. 15),
+    confirmed and deleted by ``rule`` (:data:`CONFIRMATION_RULES`, from ``tracking.confirm``).
 
     Per-track state lives in arrays indexed like the predictions of the frame: ``ids``,
     ``x`` (N, 4), ``P`` (N, 4, 4), hit/miss counters, flags, the last :data:`HISTORY`
@@ -197,13 +411,14 @@ class TrackManager:
         self.__dict__.update(_blank(0))
         self._preds: list[Prediction] | None = None
         self._pred_arrays: tuple[np.ndarray, ...] = ()
-        self.nearest = np.zeros(0, dtype=np.int64)  # per track: nearest detection near it (-1 none)
+        self._nearest_now = np.zeros(0, dtype=np.int64)  # the update's Association.nearest
         self.clutter_rule: ClutterConfig | None = None  # track rule of the static-clutter labels
         self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
         self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
         self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
         self.thresholds: confirmation.Thresholds | None = None  # this frame's (confirm = "sprt")
         self.detection_threshold = detection_threshold
+        self.rule: HitsRule | SequentialRule = CONFIRMATION_RULES[tcfg.confirm]()
 
     def __len__(self) -> int:
         return int(self.ids.size)
@@ -314,55 +529,62 @@ class TrackManager:
                 np.array([p.meeting for p in preds], dtype=bool))
 
     # -- associate ------------------------------------------------------------------------
-    def associate(self, preds: list[Prediction], xy: np.ndarray) -> dict[int, int]:
-        """Global assignment {track index: detection index}; confirmed tracks choose first.
+    def gate(self, preds: list[Prediction], xy: np.ndarray) -> Association:
+        """The gates of ``preds`` over detections ``xy`` without pairs: each track's nearest
+        detection and the detections claimed by confirmed gates (for a tracker that pairs by
+        its own cost, :meth:`Association.with_pairs`)."""
+        return Association({}, self._nearest(preds, xy), self._claimed(preds, xy))
+
+    def associate(self, preds: list[Prediction], xy: np.ndarray) -> Association:
+        """Global assignment of detections ``xy`` to tracks; confirmed tracks choose first.
 
         A detection is a candidate for a track when it lies inside the track's gate; the
         cost is the Mahalanobis distance under the innovation covariance. Tracks in meeting
         mode take no measurement, and tentative tracks take none inside a confirmed track's
         gate (so they cannot steal a meeting pair's detections). No detection is used twice.
         """
-        self.find_nearest(preds, xy)
+        gated = self.gate(preds, xy)
         if not preds or len(xy) == 0:
-            return {}
+            return gated
         centres, halves, confirmed, meeting = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
         cost = np.einsum("tdi,tij,tdj->td", diff, self._S_inv, diff)  # squared Mahalanobis
         # a confirmed track's gate is off limits to tentative ones, even while it is meeting
-        return assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
-                                      protected=inside[confirmed].any(axis=0))
+        return gated.with_pairs(assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
+                                                       protected=inside[confirmed].any(axis=0)))
 
-    def find_nearest(self, preds: list[Prediction], xy: np.ndarray) -> None:
-        """``nearest``: per track, the detection nearest its prediction within its gate and at
-        most 2 ``gate_min`` away (-1: none); a meeting track's evidence (does its target still
-        show near its extrapolation?) and its static-clutter label come from it."""
-        self.nearest = np.full(len(self), -1, dtype=np.int64)
+    def _nearest(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
+        """Per track, the detection nearest its prediction within its gate and at most 2
+        ``gate_min`` away (-1: none); a meeting track's evidence (does its target still show
+        near its extrapolation?) and its static-clutter label come from it."""
+        out = np.full(len(self), -1, dtype=np.int64)
         if not preds or len(xy) == 0 or len(preds) != len(self):
-            return
+            return out
         centres, halves, _, _ = self._arrays(preds)
         diff = xy[None, :, :] - centres[:, None, :]
         near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
         dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
-        self.nearest = np.where(near.any(axis=1), dist.argmin(axis=1), -1)
+        return np.where(near.any(axis=1), dist.argmin(axis=1), -1)
 
-    def reacquire(self, preds: list[Prediction], xy: np.ndarray, pairs: dict[int, int],
-                  eligible: np.ndarray, radius: float) -> dict[int, int]:
-        """``pairs`` plus re-acquisitions (not in the paper): a confirmed, non-meeting track with
-        no detection in its gate takes the nearest ``eligible`` detection within ``radius`` px
-        of its prediction that is unused and outside every confirmed gate (nearest pairs
+    def reacquire(self, preds: list[Prediction], xy: np.ndarray, association: Association,
+                  eligible: np.ndarray, radius: float) -> Association:
+        """``association`` plus re-acquisitions (not in the paper): a confirmed, non-meeting track
+        with no detection in its gate takes the nearest ``eligible`` detection within ``radius``
+        px of its prediction that is unused and outside every confirmed gate (nearest pairs
         first), and its filter restarts there (velocity kept, P = P₀): a jerk of the camera,
         or of a target the camera follows, threw it out of its gate."""
+        pairs = association.pairs
         if not preds or len(xy) == 0:
-            return pairs
+            return association
         centres, _, confirmed, meeting = self._arrays(preds)
         lost = np.array([i for i in np.nonzero(confirmed & ~meeting)[0].tolist() if i not in pairs],
                         dtype=np.int64)
-        free = np.asarray(eligible, dtype=bool) & ~self.claimed(preds, xy)
+        free = np.asarray(eligible, dtype=bool) & ~association.claimed
         free[list(pairs.values())] = False
         cand = np.nonzero(free)[0]
         if lost.size == 0 or cand.size == 0:
-            return pairs
+            return association
         d = np.hypot(*(xy[None, cand, :] - centres[lost, None, :]).transpose(2, 0, 1))
         out = dict(pairs)
         for flat in np.argsort(d, axis=None).tolist():
@@ -376,9 +598,9 @@ class TrackManager:
             self.restart(int(self.ids[i]), np.concatenate([xy[j], self.x[i, 2:]]))
             self._event(EventKind.REACQUIRED, i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
                                          f"{d[r, k]:.1f} px from its prediction (nothing in its gate)")
-        return out
+        return association.with_pairs(out)
 
-    def claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
+    def _claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
         """Detections inside a confirmed track's gate: they never start new tracks."""
         if len(xy) == 0 or not preds:
             return np.zeros(len(xy), dtype=bool)
@@ -388,8 +610,64 @@ class TrackManager:
         c, h = centres[confirmed], halves[confirmed]
         return (np.abs(xy[None, :, :] - c[:, None, :]) <= h[:, None, :]).all(axis=2).any(axis=0)
 
+    # -- initiate -------------------------------------------------------------------------
+    @staticmethod
+    def initiate(association: Association, start: np.ndarray | bool | None = None) -> np.ndarray:
+        """The detections that start tentative tracks this frame (indices). By default (None)
+        the unused ones outside every confirmed gate. ``start`` False: none (fusion between its
+        global detections); a mask (or True): the unused detections it allows, for a caller with
+        its own start rule."""
+        if start is False:
+            return np.zeros(0, dtype=np.int64)
+        born = ~association.used()
+        born &= ~association.claimed if start is None else np.asarray(start, dtype=bool)
+        return np.nonzero(born)[0]
+
     # -- update ---------------------------------------------------------------------------
-    def update(self, measurements: dict[int, tuple[float, float]], births: np.ndarray,
+    def update(self, association: Association, detections: Measurements,
+               positions: dict[int, tuple[float, float]] | None = None, track_density: np.ndarray | None = None,
+               gate_k: np.ndarray | None = None, start: np.ndarray | bool | None = None) -> list[TrackEvent]:
+        """Apply this frame's ``association`` of ``detections``; count misses, confirm, delete,
+        start new tracks (:meth:`initiate`; ``start`` as there). Returns the frame's events
+        (including the meeting events of :meth:`predict` and those of :meth:`reacquire`).
+
+        ``positions``: {track row: measured (x, y)} for the associated tracks that were measured
+        (GEWC: the centroid in the window; a pair left out takes no update but still uses its
+        detection); default the detections' positions. ``track_density``: false detections per
+        pixel at each track (the sequential rule). ``gate_k``: the threshold (σ) each track's
+        gate was searched at (:func:`wfviz.tracking.confirmation.gate_threshold`); where it is
+        below the frame's, a hit's false-alarm probability is at least
+        ``tracking.gate_false_alarm`` and its significance is scored from there.
+
+        Per measured track the rules read its detection's significance, blobness, novelty and
+        (with ``clutter_rule``) static-clutter label; a meeting track's label is that of the
+        detection nearest its extrapolation."""
+        d = detections
+        pairs = association.pairs
+        if positions is None:
+            positions = {i: (float(d.xy[j, 0]), float(d.xy[j, 1])) for i, j in pairs.items()}
+        taken = {i: pairs[i] for i in positions}
+
+        def per_track(values: np.ndarray | None) -> dict[int, float] | None:
+            return None if values is None else {i: float(values[j]) for i, j in taken.items()}
+
+        novelty = d.novelty if d.novelty is not None else np.full(len(d), np.nan)
+        clutter = None
+        if d.clutter is not None:  # meeting tracks: the detection nearest their extrapolation
+            clutter = {int(i): float(d.clutter[j]) for i, j in enumerate(association.nearest.tolist())
+                       if j >= 0 and self.meeting[i]}
+            clutter.update(per_track(d.clutter) or {})
+        born = self.initiate(association, start)
+        self._nearest_now = association.nearest
+        return self._apply(
+            positions, d.xy[born], scores=per_track(d.significance),
+            birth_scores=None if d.significance is None else d.significance[born],
+            clutter=clutter, birth_clutter=None if d.clutter is None else d.clutter[born],
+            shapes=per_track(d.blobness), birth_shapes=None if d.blobness is None else d.blobness[born],
+            density=track_density, birth_density=None if d.density is None else d.density[born],
+            novelty=per_track(novelty), birth_novelty=novelty[born], gate_k=gate_k)
+
+    def _apply(self, measurements: dict[int, tuple[float, float]], births: np.ndarray,
                scores: dict[int, float] | None = None, birth_scores: np.ndarray | None = None,
                clutter: dict[int, float] | None = None, birth_clutter: np.ndarray | None = None,
                shapes: dict[int, float] | None = None, birth_shapes: np.ndarray | None = None,
@@ -397,7 +675,8 @@ class TrackManager:
                novelty: dict[int, float] | None = None, birth_novelty: np.ndarray | None = None,
                gate_k: np.ndarray | None = None,
                ) -> list[TrackEvent]:
-        """Apply measurements {track index: (x, y)}, count misses, delete, start new tracks.
+        """:meth:`update` on parallel values: measurements {track row: (x, y)} and the births'
+        positions, with each one's evidence.
 
         ``scores`` / ``birth_scores``: the significance of each measurement / birth; a track is
         confirmed at ``confirm_hits`` hits when its mean significance also reaches
@@ -409,10 +688,7 @@ class TrackManager:
         ``min_known`` decided labels with a mean ≤ ``max_static`` to be confirmed (unless
         ``wait`` is off: then undecided tracks may be confirmed too), and a confirmed track
         above ``delete_static`` is deleted. ``gate_k``: the threshold (σ) each track's gate was
-        searched at (:func:`wfviz.tracking.confirmation.gate_threshold`); where it is below the frame's, a
-        hit's false-alarm probability is at least ``tracking.gate_false_alarm`` and its
-        significance is scored from there. Returns the frame's events (including meeting events
-        from :meth:`predict`).
+        searched at (see :meth:`update`).
         """
         scores, shapes = scores or {}, shapes or {}
         tc = self.tcfg
@@ -444,18 +720,16 @@ class TrackManager:
         self._push_history(np.arange(n), reported)
         missed = ~measured & ~self.meeting
         if tc.meeting_misses:  # a meeting track with nothing in its gate has lost its target
-            missed |= self.meeting & (self.nearest < 0)
-            self.misses[self.meeting & (self.nearest >= 0)] = 0
+            missed |= self.meeting & (self._nearest_now < 0)
+            self.misses[self.meeting & (self._nearest_now >= 0)] = 0
         self.misses[missed] += 1
         moved = np.hypot(reported[:, 0] - self.origin[:, 0], reported[:, 1] - self.origin[:, 1])
         self._push_motion(idx, z)
-        if tc.confirm == "sprt":
-            z, nov = np.full(n, np.nan), np.full(n, np.nan)
-            z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
-            nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
-            confirm, delete, why = self._sequential(measured, density, z, nov, gate_k)
-        else:
-            confirm, delete, why = self._m_hits(measured, missed, moved, reported, clutter)
+        z, nov = np.full(n, np.nan), np.full(n, np.nan)
+        z[idx] = [scores.get(i, np.nan) for i in idx.tolist()]
+        nov[idx] = [(novelty or {}).get(i, np.nan) for i in idx.tolist()]
+        confirm, delete, why = self.rule.decide(self, Evidence(measured, missed, moved, reported, clutter,
+                                                               density, z, nov, gate_k))
         gone = self._gone(measured, reported) & ~delete
         for i in np.nonzero(confirm | delete | gone)[0].tolist():
             if gone[i]:
@@ -480,110 +754,6 @@ class TrackManager:
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
         self._birth(births, birth_scores, birth_clutter, birth_shapes, birth_density, birth_novelty)
         return self._events
-
-    def _m_hits(self, measured: np.ndarray, missed: np.ndarray, moved: np.ndarray,
-                reported: np.ndarray, clutter: dict[int, float] | None
-                ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """The paper's rule (``tracking.confirm = "hits"``): confirmed at ``confirm_hits`` hits
-        (and the optional tests of significance, shape, motion and static clutter), deleted
-        after ``max_misses`` consecutive misses. Returns (confirm, delete, message per row: the
-        confirmation's reasons, or a deletion's whole message, "" for the usual one)."""
-        tc = self.tcfg
-        n = len(self)
-        need = tc.confirm_significance
-        mean_score = self.score_sum / np.maximum(self.hits, 1)
-        mean_shape = self.shape_sum / np.maximum(self.hits, 1)
-        mover = self._mover(reported, moved)
-        significant = ((need <= 0) | (mean_score >= need)
-                       | (mover & (mean_score >= tc.confirm_moving_significance)))
-        confirm = (measured & ~self.confirmed & (self.hits >= tc.confirm_hits)
-                   & significant & (moved >= tc.min_displacement)
-                   & ((tc.confirm_blobness <= 0) | (mean_shape >= tc.confirm_blobness)))
-        delete = missed & (self.misses >= tc.max_misses)
-        static = np.zeros(n, dtype=bool)
-        if clutter is not None and self.clutter_rule is not None:
-            rule = self.clutter_rule
-            judged = self.clutter_known >= rule.min_known
-            static = judged & (self.clutter > rule.max_static)
-            confirm &= ~static & (judged | (not rule.wait))
-            static &= self.confirmed & ~delete & (self.clutter > rule.delete_static)
-            delete |= static
-        why = [""] * n
-        for i in np.nonzero(confirm | static)[0].tolist():
-            if static[i]:
-                why[i] = (f"deleted as static clutter (fixed in the scene among many detections: "
-                          f"mean static label {self.clutter[i]:.2f})")
-                confirm[i] = False
-                continue
-            w = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
-            if need > 0 and mean_score[i] < need:
-                w += f" (a mover: {moved[i]:.1f} px in a straight line since birth)"
-            w += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
-            w += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
-            why[i] = w
-        return confirm, delete, why
-
-    def _sequential(self, measured: np.ndarray, density: np.ndarray | None, z: np.ndarray,
-                    nov: np.ndarray, gate_k: np.ndarray | None = None
-                    ) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """The two sequential tests of :mod:`wfviz.tracking.confirmation` (``tracking.confirm = "sprt"``):
-        ``score`` against noise (hits and misses, where the hits lie in the gate) and
-        ``clutter_score`` against static clutter (how significant and how new the hits are).
-        ``density``: false detections per pixel at each track; ``z``, ``nov``: each hit's
-        significance and novelty; ``gate_k``: see :meth:`update`. A track is confirmed when
-        both reach the confirmation level."""
-        tc = self.tcfg
-        n = len(self)
-        th = confirmation.thresholds(tc.false_tracks_per_1000, self.tested_per_frame or 1.0,
-                                    tc.beta, tc.p_lost)
-        self.thresholds = th
-        halves = self._pred_arrays[1] if len(self._pred_arrays) and len(self._pred_arrays[1]) == n \
-            else np.full((n, 2), self.kcfg.gate_max)
-        lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
-        p_fa = confirmation.gate_false_alarm(lam, halves)
-        deep = gate_k is not None and len(gate_k) == n
-        k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), self.detection_threshold) if deep
-                  else np.full(n, self.detection_threshold))
-        if deep:  # where the gate was searched deeper, noise puts a hit there this often
-            p_fa = np.where(k_gate < self.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
-        change = confirmation.score_change(measured, tc.p_detect, p_fa)
-        clutter = np.zeros(n)
-        m = np.nonzero(measured)[0]
-        if m.size:
-            change[m] += confirmation.position_score(self.innovation[m], self._S_inv[m], halves[m])
-            change[m] += confirmation.amplitude_score(z[m], k_gate[m])
-            clutter[m] = confirmation.change_evidence(nov[m], self.detection_threshold,
-                                                     tc.static_change_rate, tc.target_change_rate)
-        # a meeting track takes no measurement: no evidence while a detection lies near its
-        # extrapolation, a miss when none does (it has lost its target)
-        change[self.meeting & ~measured & (self.nearest >= 0)] = 0.0
-        self.score += change
-        if m.size:  # a window of the last MOTION_HISTORY hits: old evidence does not linger
-            self.clutter_hits[m, :-1] = self.clutter_hits[m, 1:]
-            self.clutter_hits[m, -1] = clutter[m]
-            self.clutter_score[m] = self.clutter_hits[m].sum(axis=1)
-        conf = self.confirmed
-        self.score[conf] = np.minimum(self.score[conf], th.confirm)
-        confirm = measured & ~conf & (self.score >= th.confirm) & (self.clutter_score >= th.confirm)
-        if tc.require_motion and confirm.any():
-            r = np.nonzero(confirm)[0]
-            mo = confirmation.motion(self.motion_t[r], self.motion_xy[r], self.motion_ok[r],
-                                    tc.position_noise)
-            confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
-        tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
-        drop = ~conf & (self.score <= th.drop + tie)
-        lost = conf & (self.score <= th.delete + tie)
-        why = [""] * n
-        for i in np.nonzero(confirm)[0].tolist():
-            why[i] = (f": persistence {self.score[i]:.1f} and not clutter {self.clutter_score[i]:.1f} "
-                      f">= {th.confirm:.1f}")
-        for i in np.nonzero(drop)[0].tolist():
-            why[i] = (f"dropped: persistence {self.score[i]:.1f} fell to {th.drop:.1f} (noise, not a target) "
-                      f"after {self.hits[i]} hits")
-        for i in np.nonzero(lost)[0].tolist():
-            why[i] = (f"deleted: score {self.score[i]:.1f} fell {th.confirm - self.score[i]:.1f} below "
-                      f"confirmation after {self.misses[i]} consecutive misses ({self.hits[i]} hits)")
-        return confirm, drop | lost, why
 
     def _gone(self, measured: np.ndarray, reported: np.ndarray) -> np.ndarray:
         """Coasting tracks (meeting mode included) whose position left the image, or (not in
@@ -655,19 +825,7 @@ class TrackManager:
         new["motion_t"][:, -1] = self._frame
         new["motion_xy"][:, -1] = births - self.offset
         new["motion_ok"][:, -1] = True
-        if self.tcfg.confirm == "sprt":  # the birth detection is a hit in the next frame's first gate
-            half = self._birth_half
-            lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
-            p_fa = confirmation.gate_false_alarm(lam, np.repeat(half, k, axis=0))
-            new["score"][:] = confirmation.score_change(np.ones(k, dtype=bool), self.tcfg.p_detect, p_fa)
-            if birth_scores is not None:
-                zb = np.asarray(birth_scores, dtype=np.float64)
-                new["score"] += confirmation.amplitude_score(zb, self.detection_threshold)
-                if birth_novelty is not None:
-                    new["clutter_hits"][:, -1] = confirmation.change_evidence(
-                        np.asarray(birth_novelty, dtype=np.float64), self.detection_threshold,
-                        self.tcfg.static_change_rate, self.tcfg.target_change_rate)
-                    new["clutter_score"][:] = new["clutter_hits"][:, -1]
+        self.rule.start(self, new, birth_scores, birth_density, birth_novelty)
         for name in _FIELDS:
             setattr(self, name, np.concatenate([getattr(self, name), new[name]]))
         if birth_clutter is not None:

@@ -45,7 +45,7 @@ from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.fusion.features import (Features, box_corners, fused_cost, min_area_rects,
                                            scalar_phi)
-from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackManager, assign_confirmed_first
+from wfviz.tracking import EventKind, Measurements, Prediction, TrackEvent, TrackManager, assign_confirmed_first
 from wfviz.tracking.confirmation import DetectionDensity
 
 _BIG = 1e9
@@ -261,30 +261,18 @@ class FusionTracker:
         if fe.camera is not None:
             mgr.shift(*fe.camera.shift)
         matches, meas = self._matches(preds, pairs, recovered, recover_cost, cost, feats, shape)
-        births = np.zeros((0, 2))
-        born_idx = np.zeros(0, dtype=np.int64)
-        claimed = mgr.claimed(preds, feats.centre)
-        if is_global and len(dets):
-            used = np.zeros(len(dets), dtype=bool)
-            used[list(pairs.values()) + list(recovered.values())] = True
-            born_idx = np.nonzero(~used & ~claimed)[0]
-            births = feats.centre[born_idx]
-            self.density.update(feats.centre[~claimed], fe.valid)
-        mgr.find_nearest(preds, feats.centre)
-        velocities = {i: mgr.velocity(i) for i in recovered}
-        sig, blob = dets.significance, dets.blobness
-        nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         taken = {**pairs, **recovered}
+        assoc = mgr.gate(preds, feats.centre).with_pairs(taken)
+        if is_global and len(dets):
+            self.density.update(feats.centre[~assoc.claimed], fe.valid)
+        born_idx = mgr.initiate(assoc, start=None if is_global else False)
+        velocities = {i: mgr.velocity(i) for i in recovered}
         mgr.frame_shape = shape
         self._restart(preds, recovered, velocities, feats)  # before the update: no jump to score
         events = events_pre + mgr.update(
-            meas, births,
-            scores=None if sig is None else {i: float(sig[j]) for i, j in taken.items()},
-            birth_scores=None if sig is None else sig[born_idx],
-            shapes=None if blob is None else {i: float(blob[j]) for i, j in taken.items()},
-            birth_shapes=None if blob is None else blob[born_idx],
-            density=self.density.at(pred_xy), birth_density=self.density.at(births),
-            novelty={i: float(nov[j]) for i, j in taken.items()}, birth_novelty=nov[born_idx])
+            assoc, Measurements(feats.centre, dets.significance, dets.blobness, dets.change,
+                                density=self.density.at(feats.centre)),
+            positions=meas, track_density=self.density.at(pred_xy), start=None if is_global else False)
         events += [TrackEvent(frame.index, EventKind.RECOVERED, preds[i].track_id,
                               f"track {preds[i].track_id} recovered by global detection at "
                               f"({feats.centre[j, 0]:.1f}, {feats.centre[j, 1]:.1f}), "

@@ -16,7 +16,7 @@ from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.gewc.config import GEWCConfig
-from wfviz.tracking import TrackManager
+from wfviz.tracking import Measurements, TrackManager
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 
@@ -83,33 +83,21 @@ class GEWCTracker:
         dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, fe.offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
-        nov = dets.change if dets.change is not None else np.full(len(dets), np.nan)
         preds = predicted
-        pairs = self.manager.associate(preds, dets.xy)
+        assoc = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
-            pairs = self.manager.reacquire(preds, dets.xy, pairs, self._could_confirm(dets, labels),
+            assoc = self.manager.reacquire(preds, dets.xy, assoc, self._could_confirm(dets, labels),
                                            c.tracking.reacquire)
         lap("associate")
-        meas = self._measure(pairs, preds, dets, suppressed, fe.noise)
+        meas = self._measure(assoc.pairs, preds, dets, suppressed, fe.noise)
         lap("centroid")
-        claimed = self.manager.claimed(preds, dets.xy)
-        used = np.zeros(len(dets), dtype=bool)
-        used[list(pairs.values())] = True
-        born = ~used & ~claimed
-        sig, blob = dets.significance, dets.blobness
-        self.density.update(dets.xy[~claimed], valid)
+        self.density.update(dets.xy[~assoc.claimed], valid)
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
         self.manager.frame_shape = fe.image.shape
         events = self.manager.update(
-            {i: (m.x, m.y) for i, m in meas.items()}, dets.xy[born],
-            scores=None if sig is None else {i: float(sig[m.detection]) for i, m in meas.items()},
-            birth_scores=None if sig is None else sig[born],
-            shapes=None if blob is None else {i: float(blob[m.detection]) for i, m in meas.items()},
-            birth_shapes=None if blob is None else blob[born],
-            clutter=None if labels is None else self._track_clutter(labels, meas),
-            birth_clutter=None if labels is None else labels[born],
-            density=self.density.at(pred_xy), birth_density=self.density.at(dets.xy[born]),
-            novelty={i: float(nov[m.detection]) for i, m in meas.items()}, birth_novelty=nov[born],
+            assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
+                                self.density.at(dets.xy)),
+            positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
             gate_k=gate_k[0])
         lap("kalman")
         timings = timer.done()
@@ -169,15 +157,6 @@ class GEWCTracker:
         if labels is not None:
             ok &= labels != 1
         return ok
-
-    def _track_clutter(self, labels: np.ndarray, meas: dict[int, Measurement]) -> dict[int, float]:
-        """Each track's static-clutter label: its measurement's, or (meeting mode, no
-        measurement) that of the detection nearest its extrapolated position."""
-        mgr = self.manager
-        out = {int(i): float(labels[d]) for i, d in enumerate(mgr.nearest.tolist())
-               if d >= 0 and mgr.meeting[i]}
-        out.update({i: float(labels[m.detection]) for i, m in meas.items()})
-        return out
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray, noise: NoiseEstimate | None = None) -> dict[int, Measurement]:

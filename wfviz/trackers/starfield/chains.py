@@ -151,7 +151,14 @@ def _angle(a: np.ndarray, b: np.ndarray) -> np.ndarray:
 
 
 class ChainManager:
-    """New / Run / Out chain lists with CV Kalman filters on the Run chains."""
+    """New / Run / Out chain lists with CV Kalman filters on the Run chains.
+
+    Not :class:`wfviz.tracking.TrackManager`: the paper (Gao Jianwei et al. 2012) starts a track
+    as a New chain of three candidates moving at a plausible speed in a straight line (no gate
+    around a prediction yet), promotes it to a Run chain, which then takes the candidate nearest
+    its Kalman prediction, and re-segments locally when none is there; the lifecycle is the
+    chains' states, not gated hits and misses. It shares the Kalman filter
+    (:mod:`wfviz.tracking.kalman`) and the event kinds (:class:`wfviz.tracking.EventKind`)."""
 
     def __init__(self, ccfg: ChainConfig, kcfg: StarKalmanConfig, tcfg: StarTrackingConfig) -> None:
         self.cfg, self.kcfg, self.tcfg = ccfg, kcfg, tcfg

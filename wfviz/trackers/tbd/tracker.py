@@ -367,7 +367,12 @@ class TBDTracker:
         the tracks' predicted positions (last estimate + velocity x frames since). Estimates
         closer than ``merge_distance`` (the same target seen by overlapping regions, a tentative
         target on a confirmed one, or two hypothesised targets on one extended spot) are merged,
-        keeping confirmed ones first, then the older region's."""
+        keeping confirmed ones first, then the older region's.
+
+        Not :class:`wfviz.tracking.TrackManager`: in the paper (Wang Hongbo and Wang Zhongwei) a
+        target's birth, existence and death are the particle filters' (the bank's most probable
+        count and each hypothesis' estimate); there are no detections to gate, update or start
+        tracks from. This only labels the filters' estimates over time."""
         tc = c.tracking
         est = sorted(estimates, key=lambda e: (not e[7], e[8]))  # confirmed first, then region
         kept: list[tuple] = []
