@@ -21,7 +21,7 @@ RECORDERS: dict[str, type[Recorder]] = {name: recorder_class(name) for name in T
 
 def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:
     """The logging adapter for ``tracker``, writing to ``path``."""
-    return RECORDERS[tracker](path, tracker=tracker, **kwargs)  # type: ignore[arg-type]
+    return recorder_class(tracker)(path, tracker=tracker, **kwargs)  # type: ignore[arg-type]
 
 
 __all__ = ["RECORDERS", "Recorder", "open_recorder", "recorder_class", "track_color"]

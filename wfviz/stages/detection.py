@@ -278,3 +278,12 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         significance=None if sig is None else sig[keep],
         change=None if changed is None else changed[keep],
     )
+
+
+def no_detections(shape: tuple[int, int], threshold: float = float("nan")) -> Detections:
+    """A :class:`Detections` with no component (a frame a tracker thresholds nothing in, as the
+    track-before-detect does)."""
+    z = np.zeros(0)
+    zi = np.zeros(0, dtype=np.int64)
+    return Detections(np.zeros((0, 2)), zi, z, z, np.zeros((0, 4), dtype=np.int64), zi,
+                      np.zeros(shape, dtype=np.int32), threshold)

@@ -17,7 +17,7 @@ import numpy as np
 from scipy.optimize import linear_sum_assignment
 
 from wfviz.io.frames import Frame
-from wfviz.stages.detection import Detections
+from wfviz.stages.detection import Detections, no_detections
 from wfviz.stages.horizon import HorizonTracker, search_region
 from wfviz.stages.imaging_circle import ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer
@@ -94,14 +94,6 @@ class _Track:
     confirmed: bool = False
     ever_confirmed: bool = False
     history: list = field(default_factory=list)
-
-
-def empty_detections(shape: tuple[int, int], threshold: float = float("nan")) -> Detections:
-    """A :class:`Detections` with no component (track-before-detect thresholds nothing)."""
-    z = np.zeros(0)
-    zi = np.zeros(0, dtype=np.int64)
-    return Detections(np.zeros((0, 2)), zi, z, z, np.zeros((0, 4), dtype=np.int64), zi,
-                      np.zeros(shape, dtype=np.int32), threshold)
 
 
 class TBDTracker:
@@ -285,7 +277,7 @@ class TBDTracker:
             y[~sky] = 0.0
             t[~sky] = 0.0
         timer.lap("normalise")
-        dets = empty_detections(img.shape)
+        dets = no_detections(img.shape)
         if self._mode == "candidates":
             xy, score = self._candidates(t, texture, frame.index)
             n = len(xy)

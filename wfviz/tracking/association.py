@@ -1,0 +1,93 @@
+"""Association of detections to tracks (Stone Soup's associator): the detections as the track
+manager reads them (:class:`Measurements`), the frame's :class:`Association`, and the global
+assignment with confirmed tracks first (:func:`assign_confirmed_first`)."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass, replace
+
+import numpy as np
+from scipy.optimize import linear_sum_assignment
+
+
+@dataclass(frozen=True)
+class Measurements:
+    """This frame's detections as the track manager reads them, one row each: the position and
+    the evidence the confirmation rules use (None: the tracker does not measure it).
+
+    ``significance``: σ above the local noise; ``blobness``: :func:`wfviz.stages.detection.blobness`;
+    ``novelty``: how new the detection is at its place in the scene (σ); ``clutter``: its
+    static-clutter label (:mod:`wfviz.stages.clutter`: 1 static, 0 not, NaN undecided);
+    ``density``: false detections per pixel around it (:class:`~wfviz.tracking.confirmation.DetectionDensity`).
+    """
+
+    xy: np.ndarray
+    significance: np.ndarray | None = None
+    blobness: np.ndarray | None = None
+    novelty: np.ndarray | None = None
+    clutter: np.ndarray | None = None
+    density: np.ndarray | None = None
+
+    def __len__(self) -> int:
+        return int(len(self.xy))
+
+
+@dataclass(frozen=True)
+class Association:
+    """Which detection each track takes this frame (:meth:`TrackManager.associate`), for
+    :meth:`TrackManager.update`.
+
+    ``pairs``: {track row: detection index}, no detection twice; ``nearest``: per track row, the
+    detection nearest its prediction within its gate and 2 ``gate_min`` (-1: none), the evidence
+    of a track in meeting mode, which takes no measurement; ``claimed``: per detection, inside a
+    confirmed track's gate (such a detection starts no track).
+    """
+
+    pairs: dict[int, int]
+    nearest: np.ndarray
+    claimed: np.ndarray
+
+    def with_pairs(self, pairs: dict[int, int]) -> Association:
+        """The same gates with other pairs (a tracker's own associator)."""
+        return replace(self, pairs=dict(pairs))
+
+    def used(self) -> np.ndarray:
+        """Per detection: taken by a track."""
+        out = np.zeros(len(self.claimed), dtype=bool)
+        out[list(self.pairs.values())] = True
+        return out
+
+
+_BIG = 1e9  # cost of an inadmissible pair
+
+
+def assign_confirmed_first(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarray,
+                           protected: np.ndarray | None = None) -> dict[int, int]:
+    """{row: column} minimising the total ``cost`` over admissible pairs (``ok``): confirmed
+    rows choose first, then tentative rows among the columns left, except ``protected`` ones
+    (default: every column admissible to a confirmed row). No column is used twice."""
+    out: dict[int, int] = {}
+    if cost.size == 0:
+        return out
+    used = np.zeros(cost.shape[1], dtype=bool)
+    if protected is None:
+        protected = ok[confirmed].any(axis=0)
+    for want in (True, False):
+        rows = np.nonzero(confirmed == want)[0]
+        if rows.size == 0:
+            continue
+        allowed = ok[rows] & ~used[None, :]
+        if not want:
+            allowed &= ~protected[None, :]
+        keep = allowed.any(axis=1)  # rows with no admissible column stay out of the solve
+        rows, allowed = rows[keep], allowed[keep]
+        cols = np.nonzero(allowed.any(axis=0))[0]
+        if cols.size == 0:
+            continue
+        c = np.where(allowed[:, cols], cost[np.ix_(rows, cols)], _BIG)
+        ri, ci = linear_sum_assignment(c)
+        for r, k in zip(ri, ci):
+            if c[r, k] < _BIG:
+                out[int(rows[r])] = int(cols[k])
+                used[cols[k]] = True
+    return out
