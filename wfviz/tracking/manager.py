@@ -100,7 +100,8 @@ class TrackManager:
     reported positions and the last three filtered velocities.
     """
 
-    def __init__(self, kcfg: KalmanConfig, tcfg: TrackingConfig, detection_threshold: float = 4.0) -> None:
+    def __init__(self, kcfg: KalmanConfig, tcfg: TrackingConfig, detection_threshold: float = 4.0,
+                 clutter_rule: ClutterConfig | None = None) -> None:
         self.kcfg, self.tcfg = kcfg, tcfg
         self.model = kalman.CVModel.make(kcfg.q, kcfg.r)
         self.P0 = kalman.initial_covariance(kcfg.r, kcfg.initial_velocity_std)
@@ -114,7 +115,7 @@ class TrackManager:
         self._preds: list[Prediction] | None = None
         self._pred_arrays: tuple[np.ndarray, ...] = ()
         self._nearest_now = np.zeros(0, dtype=np.int64)  # the update's Association.nearest
-        self.clutter_rule: ClutterConfig | None = None  # track rule of the static-clutter labels
+        self.clutter_rule = clutter_rule  # track rule of the static-clutter labels (None: no clutter stage)
         self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
         self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
         self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
@@ -328,7 +329,8 @@ class TrackManager:
     # -- update ---------------------------------------------------------------------------
     def update(self, association: Association, detections: Measurements,
                positions: dict[int, tuple[float, float]] | None = None, track_density: np.ndarray | None = None,
-               gate_k: np.ndarray | None = None, start: np.ndarray | bool | None = None) -> list[TrackEvent]:
+               gate_k: np.ndarray | None = None, start: np.ndarray | bool | None = None,
+               frame_shape: tuple[int, ...] | None = None) -> list[TrackEvent]:
         """Apply this frame's ``association`` of ``detections``; count misses, confirm, delete,
         start new tracks (:meth:`initiate`; ``start`` as there). Returns the frame's events
         (including the meeting events of :meth:`predict` and those of :meth:`reacquire`).
@@ -339,13 +341,16 @@ class TrackManager:
         pixel at each track (the sequential rule). ``gate_k``: the threshold (σ) each track's
         gate was searched at (:func:`wfviz.tracking.confirmation.gate_threshold`); where it is
         below the frame's, a hit's false-alarm probability is at least
-        ``tracking.gate_false_alarm`` and its significance is scored from there.
+        ``tracking.gate_false_alarm`` and its significance is scored from there. ``frame_shape``:
+        the image's (rows, columns); a coasting track whose position leaves it is deleted.
 
         Per measured track the rules read its detection's significance, blobness, novelty and
         (with ``clutter_rule``) static-clutter label; a meeting track's label is that of the
         detection nearest its extrapolation."""
         d = detections
         pairs = association.pairs
+        if frame_shape is not None:
+            self.frame_shape = (int(frame_shape[0]), int(frame_shape[1]))
         if positions is None:
             positions = {i: (float(d.xy[j, 0]), float(d.xy[j, 1])) for i, j in pairs.items()}
         taken = {i: pairs[i] for i in positions}

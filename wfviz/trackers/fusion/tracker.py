@@ -267,12 +267,12 @@ class FusionTracker:
             self.density.update(feats.centre[~assoc.claimed], fe.valid)
         born_idx = mgr.initiate(assoc, start=None if is_global else False)
         velocities = {i: mgr.velocity(i) for i in recovered}
-        mgr.frame_shape = shape
         self._restart(preds, recovered, velocities, feats)  # before the update: no jump to score
         events = events_pre + mgr.update(
             assoc, Measurements(feats.centre, dets.significance, dets.blobness, dets.change,
                                 density=self.density.at(feats.centre)),
-            positions=meas, track_density=self.density.at(pred_xy), start=None if is_global else False)
+            positions=meas, track_density=self.density.at(pred_xy), start=None if is_global else False,
+            frame_shape=shape)
         events += [TrackEvent(frame.index, EventKind.RECOVERED, preds[i].track_id,
                               f"track {preds[i].track_id} recovered by global detection at "
                               f"({feats.centre[j, 0]:.1f}, {feats.centre[j, 1]:.1f}), "

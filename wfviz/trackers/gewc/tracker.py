@@ -49,11 +49,10 @@ class GEWCTracker:
         self.config = config or GEWCConfig()
         c = self.config
         self.front = FrontEnd(c)
-        self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma)
-        self.density = DetectionDensity(c.noise.tile)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
-        if self.clutter is not None:
-            self.manager.clutter_rule = c.clutter
+        self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma,
+                                    clutter_rule=c.clutter if self.clutter is not None else None)
+        self.density = DetectionDensity(c.noise.tile)
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -93,12 +92,11 @@ class GEWCTracker:
         lap("centroid")
         self.density.update(dets.xy[~assoc.claimed], valid)
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
-        self.manager.frame_shape = fe.image.shape
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy)),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
-            gate_k=gate_k[0])
+            gate_k=gate_k[0], frame_shape=fe.image.shape)
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
