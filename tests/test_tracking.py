@@ -395,6 +395,32 @@ def _misses_to_delete(th: confirmation.Thresholds, p_detect: float) -> int:
     return int(np.ceil((th.confirm - th.delete) / -miss - 1e-9))
 
 
+@pytest.mark.parametrize("later", [0.0, 10.0])
+def test_sprt_deletes_a_confirmed_track_that_turns_static(later):
+    """A confirmed mover whose hits stop being new at their place (it stopped on a fixed object,
+    novelty 0) is deleted as static clutter after ceil(ln((1 - alpha) / beta) / e) unchanged
+    hits (e: the evidence of one); while its hits stay new (novelty 10) it is kept."""
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    events = []
+    for f in range(40):
+        preds = mgr.predict(f)
+        x = 50 + 1.5 * min(f, 20)  # moves for 20 frames, then stays put
+        xy = np.array([[x, 40.0]])
+        nov = 10.0 if f < 20 else later
+        assoc = mgr.associate(preds, xy)
+        events += mgr.update(assoc, Measurements(xy, significance=np.full(1, 10.0), novelty=np.full(1, nov)),
+                             start=~assoc.used())
+    assert [e.frame for e in events if e.kind == "confirmed"] and min(e.frame for e in events if e.kind == "confirmed") < 20
+    gone = [e for e in events if e.kind == "deleted" and "static clutter" in e.message]
+    if later:
+        assert gone == [] and mgr.states()[0].confirmed
+    else:
+        tc, th = TrackingConfig(), mgr.thresholds
+        e = -float(confirmation.change_evidence(np.array([0.0]), mgr.detection_threshold,
+                                                tc.static_change_rate, tc.target_change_rate)[0])
+        assert len(gone) == 1 and gone[0].frame == 20 + int(np.ceil(-th.drop / e)) - 1
+
+
 @pytest.mark.parametrize("p_lost", [
     0.001,
     0.005, 0.0002, 0.05,

@@ -80,6 +80,7 @@ def _blank(n: int) -> dict[str, np.ndarray]:
         clutter_known=np.zeros(n, dtype=np.int64),  # hits with a decided label
         score=np.zeros(n),                      # sequential test against noise (confirmation), nats
         clutter_score=np.zeros(n),              # test against static clutter: sum of clutter_hits
+        static_cusum=np.zeros(n),               # since confirmation: Page's CUSUM towards static clutter
         clutter_hits=np.zeros((n, MOTION_HISTORY)),  # its evidence from the last hits, oldest first
         motion_t=np.zeros((n, MOTION_HISTORY)),  # frames of the measured scene positions
         motion_xy=np.zeros((n, MOTION_HISTORY, 2)),  # measured positions, camera motion removed

@@ -15,6 +15,10 @@ from wfviz.tracking import confirmation
 if TYPE_CHECKING:
     from wfviz.tracking.manager import TrackManager
 
+#: SequentialRule: a confirmed track whose hits have stopped being new at their place is deleted
+#: (False: the rule before it, for ablations)
+DELETE_STATIC = True
+
 
 @dataclass(frozen=True)
 class Evidence:
@@ -91,7 +95,14 @@ class SequentialRule:
     in the gate, how significant they are) and ``clutter_score`` against static clutter (how new
     the hits are at their place in the scene). A track is confirmed when both reach the
     confirmation level, dropped (tentative) or deleted (confirmed) when ``score`` falls to its
-    level; the birth detection counts as a hit in the first gate."""
+    level; the birth detection counts as a hit in the first gate.
+
+    A confirmed track is also deleted when it turns into static clutter (a track that left its
+    target for a fixed object, or a lamp that moved once): Page's CUSUM (E. S. Page,
+    "Continuous inspection schemes", Biometrika 41, 1954) of each hit's clutter evidence since
+    confirmation, W ← max(0, W − e), reaches ln((1 − α) / β), the level at which the confirmation
+    test itself decides "static clutter" (with the default rates 8 unchanged hits in a row;
+    a new hit takes 2.3 off W)."""
 
     def start(self, mgr: TrackManager, new: dict[str, np.ndarray], birth_scores: np.ndarray | None,
               birth_density: np.ndarray | None, birth_novelty: np.ndarray | None) -> None:
@@ -143,6 +154,7 @@ class SequentialRule:
             mgr.clutter_hits[m, :-1] = mgr.clutter_hits[m, 1:]
             mgr.clutter_hits[m, -1] = clutter[m]
             mgr.clutter_score[m] = mgr.clutter_hits[m].sum(axis=1)
+            mgr.static_cusum[m] = np.maximum(mgr.static_cusum[m] - clutter[m], 0.0)
         conf = mgr.confirmed
         mgr.score[conf] = np.minimum(mgr.score[conf], th.confirm)
         confirm = measured & ~conf & (mgr.score >= th.confirm) & (mgr.clutter_score >= th.confirm)
@@ -154,6 +166,11 @@ class SequentialRule:
         tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
         drop = ~conf & (mgr.score <= th.drop + tie)
         lost = conf & (mgr.score <= th.delete + tie)
+        # a confirmed track that turned static: Page's CUSUM of the clutter evidence since
+        # confirmation reaches the static-clutter level of the confirmation test
+        static = (conf & ~lost & (mgr.static_cusum >= -th.drop - tie) if DELETE_STATIC
+                  else np.zeros(n, dtype=bool))
+        mgr.static_cusum[confirm] = 0.0
         why = [""] * n
         for i in np.nonzero(confirm)[0].tolist():
             why[i] = (f": persistence {mgr.score[i]:.1f} and not clutter {mgr.clutter_score[i]:.1f} "
@@ -164,7 +181,10 @@ class SequentialRule:
         for i in np.nonzero(lost)[0].tolist():
             why[i] = (f"deleted: score {mgr.score[i]:.1f} fell {th.confirm - mgr.score[i]:.1f} below "
                       f"confirmation after {mgr.misses[i]} consecutive misses ({mgr.hits[i]} hits)")
-        return confirm, drop | lost, why
+        for i in np.nonzero(static)[0].tolist():
+            why[i] = (f"deleted as static clutter: its last hits are not new at their place in the scene "
+                      f"(not clutter {mgr.clutter_score[i]:.1f}, CUSUM {mgr.static_cusum[i]:.1f})")
+        return confirm, drop | lost | static, why
 
 
 #: ``tracking.confirm`` -> the confirmation rule it selects
