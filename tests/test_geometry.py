@@ -233,3 +233,32 @@ def test_independent_fisheye_samples(name, floor_cover, max_median):
     err = np.where(np.isfinite(err), err, np.inf)
     assert np.median(err) <= max_median
     assert np.mean(err <= 5.0) >= floor_cover
+
+
+@pytest.mark.parametrize("cross", [True, False])
+def test_a_confirmed_track_is_followed_below_the_horizon(cross, monkeypatch):
+    """A target descending from the sky across the skyline into the ground: its confirmed
+    track's gate is searched below the horizon too, so the track follows it there; without
+    that (the search region only) the track is lost at the line. No track starts on the
+    textured ground either way."""
+    from wfviz.io.frames import Frame
+    from wfviz.synth.psf import add_gaussian_spot
+    from wfviz.trackers.gewc import GEWCTracker
+    from wfviz.trackers.gewc import tracker as gewc_tracker
+
+    monkeypatch.setattr(gewc_tracker, "GATES_CROSS_HORIZON", cross)
+    rng = np.random.default_rng(5)
+    background, boundary = skyline_scene(rng)
+    trk = GEWCTracker()
+    below = 0
+    for k in range(40):
+        x, y = 40.0 + 1.5 * k, 110.0 + 2.0 * k
+        img = background + rng.normal(0, 20, (H, W)).astype(np.float32)
+        add_gaussian_spot(img, x, y, 4000.0, 1.0, 1.0)
+        r = trk.step(Frame(k, k / 25, np.clip(img, 0, 65535).astype(np.uint16)))
+        on_ground = y > boundary[int(round(x))] + 4
+        for t in r.tracks:
+            if t.confirmed and t.y > boundary[int(round(t.x))] + 4:
+                assert np.hypot(t.x - x, t.y - y) < 3.0  # only the target, never the ground
+                below += on_ground
+    assert (below >= 8) if cross else (below == 0)

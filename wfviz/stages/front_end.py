@@ -134,14 +134,17 @@ class FrontEnd:
 
     def step(self, raw: np.ndarray, lap: Callable[[str], None], windows: np.ndarray | None = None,
              update_horizon: bool = True,
-             k_map: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
+             k_map: Callable[[CameraState | None], np.ndarray | None] | None = None,
+             gates: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
         """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
         ``windows`` (a mask): detect only there, with the noise statistics of the last frame
         searched whole (a tracker's search windows; with a global or box threshold, this
         frame's threshold over the whole search region); the temporal background still learns every
         frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
         ``k_map(camera)``: called once the camera motion is known, the detection threshold of
-        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`)."""
+        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`).
+        ``gates(camera)``: likewise, pixels searched besides the search region (confirmed tracks'
+        gates, which may reach below the horizon; None: none)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -180,6 +183,9 @@ class FrontEnd:
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
         kmap = k_map(camera) if k_map is not None and noise is not None else None
+        extra = gates(camera) if gates is not None else None
+        if extra is not None:
+            region = region | (extra & valid & (True if windows is None else windows))
         if windows is not None and c.detection.mode != "cfar":
             # a global or box threshold is a statistic of the whole search region, not of the
             # windows (whose own statistics a bright target inflates): detect there, keep the
@@ -196,9 +202,11 @@ class FrontEnd:
                               region, self._zones, camera, self._offset.copy(), suppressed, noise,
                               change, dets, self.bad.flagged, bad_changed)
 
-    def redetect(self, result: FrontEndResult, lap: Callable[[str], None]) -> FrontEndResult:
+    def redetect(self, result: FrontEndResult, lap: Callable[[str], None],
+                 gates: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
         """``result`` (a frame searched in windows only) detected again over the whole search
-        region, with this frame's own noise statistics (the other stages are not repeated)."""
+        region (and ``gates``, as in :meth:`step`), with this frame's own noise statistics (the
+        other stages are not repeated)."""
         c = self.config
         noise = result.noise
         if self.noise is not None:
@@ -206,11 +214,15 @@ class FrontEnd:
             g = self.tail.update(est.significance(result.suppressed), self._region, overall=SPATIAL_OVERALL)
             noise = self._noise = replace(est, sigma=est.sigma * g)
             lap("noise")
-        dets = detect(result.suppressed, self._region, c.detection, self._zones, noise, result.change)
+        region = self._region
+        extra = gates(result.camera) if gates is not None else None
+        if extra is not None:
+            region = region | (extra & result.valid)
+        dets = detect(result.suppressed, region, c.detection, self._zones, noise, result.change)
         dets = score_detections(dets, result.image, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         lap("detect")
-        return replace(result, region=self._region, noise=noise, detections=dets)
+        return replace(result, region=region, noise=noise, detections=dets)
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:

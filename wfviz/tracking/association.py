@@ -4,10 +4,13 @@ assignment with confirmed tracks first (:func:`assign_confirmed_first`)."""
 
 from __future__ import annotations
 
+from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from wfviz.tracking.tracks import Prediction
 
 
 @dataclass(frozen=True)
@@ -90,4 +93,23 @@ def assign_confirmed_first(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarr
             if c[r, k] < _BIG:
                 out[int(rows[r])] = int(cols[k])
                 used[cols[k]] = True
+    return out
+
+
+def gate_mask(preds: Sequence[Prediction], shape: tuple[int, int]) -> np.ndarray | None:
+    """Pixels inside the gates of the confirmed predictions not in meeting mode (None: there is
+    none). The front end searches them even below the horizon: the ground exclusion keeps
+    ground clutter from starting tracks, not a confirmed track's target from being followed
+    across the skyline."""
+    out = None
+    h, w = shape
+    for p in preds:
+        if not p.confirmed or p.meeting:
+            continue
+        x0, x1 = max(int(np.ceil(p.x - p.half_w)), 0), min(int(np.floor(p.x + p.half_w)) + 1, w)
+        y0, y1 = max(int(np.ceil(p.y - p.half_h)), 0), min(int(np.floor(p.y + p.half_h)) + 1, h)
+        if x1 > x0 and y1 > y0:
+            if out is None:
+                out = np.zeros((h, w), dtype=bool)
+            out[y0:y1, x0:x1] = True
     return out

@@ -45,10 +45,12 @@ from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.fusion.features import (Features, box_corners, fused_cost, min_area_rects,
                                            scalar_phi)
-from wfviz.tracking import EventKind, Measurements, Prediction, TrackEvent, TrackManager, assign_confirmed_first
+from wfviz.tracking import (EventKind, Measurements, Prediction, TrackEvent, TrackManager, assign_confirmed_first,
+                            gate_mask)
 from wfviz.tracking.confirmation import DetectionDensity
 
 _BIG = 1e9
+GATES_CROSS_HORIZON = True  # as GEWC's (wfviz.trackers.gewc.tracker)
 DENSE_CROPS = 64  # more search crops than this: one full-frame crop is faster
 
 
@@ -214,6 +216,7 @@ class FusionTracker:
         confirmed = np.array([p.confirmed for p in preds], dtype=bool)
         active = np.array([not p.meeting for p in preds], dtype=bool)  # meeting tracks take nothing
         lap("associate")
+        gates = (lambda camera: gate_mask(preds, shape[:2])) if GATES_CROSS_HORIZON else None
 
         reason = ""
         if self._steps == 0:
@@ -231,7 +234,7 @@ class FusionTracker:
         if not reason:
             search = [i for i in range(len(preds)) if active[i]]
             windows, searched = self._window_mask(preds, search, shape)
-            fe = self.front.step(frame.image, lap, windows=windows, update_horizon=False)
+            fe = self.front.step(frame.image, lap, windows=windows, update_horizon=False, gates=gates)
             dets, feats = self._features(fe.detections, fe.image)
             pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, shape)
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
@@ -249,9 +252,9 @@ class FusionTracker:
                                              f"track {preds[i].track_id}: no candidate in its search "
                                              f"window, global detection reruns"))
             if fe is None:
-                fe = self.front.step(frame.image, lap)
+                fe = self.front.step(frame.image, lap, gates=gates)
             else:  # the windows were searched: detect in the whole frame, this frame's statistics
-                fe = self.front.redetect(fe, lap)
+                fe = self.front.redetect(fe, lap, gates=gates)
             searched = []
             dets, feats = self._features(fe.detections, fe.image)
             pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, shape)

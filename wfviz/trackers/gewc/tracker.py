@@ -16,7 +16,7 @@ from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.gewc.config import GEWCConfig
-from wfviz.tracking import Measurements, TrackManager
+from wfviz.tracking import Measurements, TrackManager, gate_mask
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 
@@ -38,6 +38,10 @@ class GEWCResult(FrontEndTrackResult):
     measurements: tuple[Measurement, ...]
     camera_shift: tuple[float, float] | None  # (dx, dy) the tracks were moved by (None: not compensated)
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
+
+
+#: confirmed tracks' gates are searched below the horizon too (False: the search region only, for ablations)
+GATES_CROSS_HORIZON = True
 
 
 class GEWCTracker:
@@ -68,13 +72,22 @@ class GEWCTracker:
         gate_k: list = [None]
 
         def k_map(camera: CameraState | None) -> np.ndarray | None:  # camera known: predict
-            if camera is not None:
-                self.manager.shift(*camera.shift)
-            predicted.extend(self.manager.predict(frame.index))
+            if not predicted:
+                if camera is not None:
+                    self.manager.shift(*camera.shift)
+                predicted.extend(self.manager.predict(frame.index))
             gate_k[0] = self._gate_thresholds(predicted)
             return None if gate_k[0] is None else self._threshold_map(predicted, gate_k[0], frame.image.shape)
 
-        fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None)
+        def gates(camera: CameraState | None) -> np.ndarray | None:  # confirmed gates
+            if not predicted:
+                if camera is not None:
+                    self.manager.shift(*camera.shift)
+                predicted.extend(self.manager.predict(frame.index))
+            return gate_mask(predicted, frame.image.shape[:2])
+
+        fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None,
+                             gates=gates if GATES_CROSS_HORIZON else None)
         if not predicted:  # k_map was not called
             if fe.camera is not None:
                 self.manager.shift(*fe.camera.shift)
