@@ -135,7 +135,7 @@ class FrontEnd:
     def step(self, raw: np.ndarray, lap: Callable[[str], None], windows: np.ndarray | None = None,
              update_horizon: bool = True,
              k_map: Callable[[CameraState | None], np.ndarray | None] | None = None,
-             gates: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
+             gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
         """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
         ``windows`` (a mask): detect only there, with the noise statistics of the last frame
         searched whole (a tracker's search windows; with a global or box threshold, this
@@ -143,8 +143,8 @@ class FrontEnd:
         frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
         ``k_map(camera)``: called once the camera motion is known, the detection threshold of
         every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`).
-        ``gates(camera)``: likewise, pixels searched besides the search region (confirmed tracks'
-        gates, which may reach below the horizon; None: none)."""
+        ``gates(camera)``: likewise, boxes (row and column slices) searched besides the search
+        region (confirmed tracks' gates, which may reach below the horizon)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -183,9 +183,8 @@ class FrontEnd:
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
         kmap = k_map(camera) if k_map is not None and noise is not None else None
-        extra = gates(camera) if gates is not None else None
-        if extra is not None:
-            region = region | (extra & valid & (True if windows is None else windows))
+        if gates is not None:
+            region = _with_boxes(region, gates(camera), valid, windows)
         if windows is not None and c.detection.mode != "cfar":
             # a global or box threshold is a statistic of the whole search region, not of the
             # windows (whose own statistics a bright target inflates): detect there, keep the
@@ -203,7 +202,7 @@ class FrontEnd:
                               change, dets, self.bad.flagged, bad_changed)
 
     def redetect(self, result: FrontEndResult, lap: Callable[[str], None],
-                 gates: Callable[[CameraState | None], np.ndarray | None] | None = None) -> FrontEndResult:
+                 gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
         """``result`` (a frame searched in windows only) detected again over the whole search
         region (and ``gates``, as in :meth:`step`), with this frame's own noise statistics (the
         other stages are not repeated)."""
@@ -214,10 +213,7 @@ class FrontEnd:
             g = self.tail.update(est.significance(result.suppressed), self._region, overall=SPATIAL_OVERALL)
             noise = self._noise = replace(est, sigma=est.sigma * g)
             lap("noise")
-        region = self._region
-        extra = gates(result.camera) if gates is not None else None
-        if extra is not None:
-            region = region | (extra & result.valid)
+        region = self._region if gates is None else _with_boxes(self._region, gates(result.camera), result.valid)
         dets = detect(result.suppressed, region, c.detection, self._zones, noise, result.change)
         dets = score_detections(dets, result.image, self._region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
@@ -251,3 +247,16 @@ class FrontEnd:
             self._change_scale = cv2.divide(1.0, cv2.multiply(self._spread.sigma, factor))
             return cv2.divide(z, factor)
         return cv2.multiply(change, self._change_scale)
+
+
+def _with_boxes(region: np.ndarray, boxes: list[tuple[slice, slice]], valid: np.ndarray,
+                windows: np.ndarray | None = None) -> np.ndarray:
+    """``region`` (not modified) plus the ``valid`` pixels of each box (inside ``windows``, when
+    given)."""
+    if not boxes:
+        return region
+    out = region.copy()
+    for rows, cols in boxes:
+        add = valid[rows, cols] if windows is None else valid[rows, cols] & windows[rows, cols]
+        out[rows, cols] |= add
+    return out

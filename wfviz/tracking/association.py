@@ -96,12 +96,12 @@ def assign_confirmed_first(cost: np.ndarray, ok: np.ndarray, confirmed: np.ndarr
     return out
 
 
-def gate_mask(preds: Sequence[Prediction], shape: tuple[int, int]) -> np.ndarray | None:
-    """Pixels inside the gates of the confirmed predictions not in meeting mode (None: there is
-    none). The front end searches them even below the horizon: the ground exclusion keeps
-    ground clutter from starting tracks, not a confirmed track's target from being followed
-    across the skyline."""
-    out = None
+def gate_boxes(preds: Sequence[Prediction], shape: tuple[int, int]) -> list[tuple[slice, slice]]:
+    """(rows, columns) slices of the gates of the confirmed predictions not in meeting mode,
+    clipped to the image. The front end searches them even below the horizon: the ground
+    exclusion keeps ground clutter from starting tracks, not a confirmed track's target from
+    being followed across the skyline."""
+    out = []
     h, w = shape
     for p in preds:
         if not p.confirmed or p.meeting:
@@ -109,7 +109,5 @@ def gate_mask(preds: Sequence[Prediction], shape: tuple[int, int]) -> np.ndarray
         x0, x1 = max(int(np.ceil(p.x - p.half_w)), 0), min(int(np.floor(p.x + p.half_w)) + 1, w)
         y0, y1 = max(int(np.ceil(p.y - p.half_h)), 0), min(int(np.floor(p.y + p.half_h)) + 1, h)
         if x1 > x0 and y1 > y0:
-            if out is None:
-                out = np.zeros((h, w), dtype=bool)
-            out[y0:y1, x0:x1] = True
+            out.append((slice(y0, y1), slice(x0, x1)))
     return out

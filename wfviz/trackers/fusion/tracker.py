@@ -46,7 +46,7 @@ from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.fusion.features import (Features, box_corners, fused_cost, min_area_rects,
                                            scalar_phi)
 from wfviz.tracking import (EventKind, Measurements, Prediction, TrackEvent, TrackManager, assign_confirmed_first,
-                            gate_mask)
+                            gate_boxes)
 from wfviz.tracking.confirmation import DetectionDensity
 
 _BIG = 1e9
@@ -216,7 +216,7 @@ class FusionTracker:
         confirmed = np.array([p.confirmed for p in preds], dtype=bool)
         active = np.array([not p.meeting for p in preds], dtype=bool)  # meeting tracks take nothing
         lap("associate")
-        gates = (lambda camera: gate_mask(preds, shape[:2])) if GATES_CROSS_HORIZON else None
+        gates = (lambda camera: gate_boxes(preds, shape[:2])) if GATES_CROSS_HORIZON else None
 
         reason = ""
         if self._steps == 0:

@@ -16,7 +16,7 @@ from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer
 from wfviz.trackers.gewc.config import GEWCConfig
-from wfviz.tracking import Measurements, TrackManager, gate_mask
+from wfviz.tracking import Measurements, TrackManager, gate_boxes
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 
@@ -79,12 +79,12 @@ class GEWCTracker:
             gate_k[0] = self._gate_thresholds(predicted)
             return None if gate_k[0] is None else self._threshold_map(predicted, gate_k[0], frame.image.shape)
 
-        def gates(camera: CameraState | None) -> np.ndarray | None:  # confirmed gates
+        def gates(camera: CameraState | None) -> list[tuple[slice, slice]]:  # confirmed gates
             if not predicted:
                 if camera is not None:
                     self.manager.shift(*camera.shift)
                 predicted.extend(self.manager.predict(frame.index))
-            return gate_mask(predicted, frame.image.shape[:2])
+            return gate_boxes(predicted, frame.image.shape[:2])
 
         fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None,
                              gates=gates if GATES_CROSS_HORIZON else None)
