@@ -30,6 +30,8 @@ def bench(clip: Clip, tracker: Tracker, start: int = 0, stop: int | None = None,
     timing = TimingSink(warmup)
     summary = drive(clip, tracker, [timing], start=start, stop=stop, ahead=False)
     if not timing.decode:
+        if summary.signal is not None:  # stopped before a frame was timed: nothing to show
+            raise KeyboardInterrupt
         raise ValueError(f"{clip.name}: need more than {warmup} frames to time (got {timing.seen})")
     decode, stages = timing.timings()
     return BenchResult(len(timing.decode), timing.shape, decode, stages, summary.signal)

@@ -134,7 +134,7 @@ class TrackingConfig:
     p_lost: float = field(default=0.001, metadata=value_range(1e-9, 0.5))
     position_noise: float = field(default=0.3, metadata=value_range(0.001, 10.0))
     require_motion: bool = True
-    min_motion: float = field(default=2.0, metadata=value_range(0.0, None))  # px, net (track_score)
+    min_motion: float = field(default=2.0, metadata=value_range(0.0, None))  # px, net (tracking.confirmation)
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.5, metadata=value_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=value_range(1, None))
@@ -146,7 +146,7 @@ class TrackingConfig:
     confirm_straightness: float = field(default=0.8, metadata=value_range(0.0, 1.0))
     reacquire: float = field(default=15.0, metadata=value_range(0.0, None))  # px; 0: off (not in the paper)
     # a confirmed track's gate is searched at a lower threshold, such that noise alone crosses
-    # it somewhere in the gate with this probability (track_score.gate_threshold); 0: off
+    # it somewhere in the gate with this probability (tracking.confirmation.gate_threshold); 0: off
     gate_false_alarm: float = field(default=0.0, metadata=value_range(0.0, 0.5))
     min_displacement: float = field(default=0.0, metadata=value_range(0.0, None))
     max_misses: int = field(default=3, metadata=value_range(1, None))

@@ -9,6 +9,7 @@ import signal
 import threading
 import time
 from collections.abc import Callable, Generator, Iterator, Sequence
+from contextlib import nullcontext
 from dataclasses import dataclass, replace
 from pathlib import Path
 from types import FrameType
@@ -86,7 +87,7 @@ def min_frame_side(config: TrackerConfig | None) -> int:
 
 
 def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0, stop: int | None = None,
-          ahead: bool = True) -> RunSummary:
+          ahead: bool = True, signals: StopSignals | None = None) -> RunSummary:
     """The one loop: frames ``start <= index < stop`` of ``clip`` through ``tracker``, each
     :class:`~wfviz.sinks.Step` to every sink in order, then every sink's ``finish`` (or, on an
     error, every sink's ``abort``, and the error goes on).
@@ -94,13 +95,19 @@ def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0
     ``ahead`` decodes frames in a background thread while the tracker works
     (:func:`wfviz.io.frames.read_ahead`); without it a step's ``wait_ms`` is the decoding time.
     SIGINT and SIGTERM (and a KeyboardInterrupt raised by a sink) stop the run after the current
-    frame; the sinks then finish with the frames done. No frame in the range: ValueError.
+    frame; the sinks then finish with the frames done. ``signals``: an active :class:`StopSignals`
+    of the caller (a signal that arrived while it opened the sinks stops the run before its first
+    frame). No frame in the range: ValueError.
     """
     source = str(clip.path) if clip.path is not None else clip.name
-    check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+    try:
+        check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+    except BaseException:
+        _abort(sinks)
+        raise
     frames, confirmed, first, last = 0, set(), None, None
     tracker_ms = 0.0
-    with StopSignals() as signals:
+    with (nullcontext(signals) if signals is not None else StopSignals()) as signals:
         t_start = time.perf_counter()
         stream = read_ahead(clip.frames(start, stop)) if ahead else _generator(clip.frames(start, stop))
         try:
@@ -114,11 +121,11 @@ def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0
                 step = Step(frame, result, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
                 tracker_ms += step.step_ms
                 confirmed.update(t.track_id for t in result.tracks if t.confirmed)
-                for sink in sinks:
-                    sink.step(step)
-                frames += 1
+                frames += 1  # counted before the sinks: one that raises KeyboardInterrupt had it
                 first = frame.index if first is None else first
                 last = frame.index
+                for sink in sinks:
+                    sink.step(step)
                 if signals.signum is not None:
                     break
         except KeyboardInterrupt:  # not installed (other thread) or raised by a sink
@@ -163,19 +170,20 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
             check_writable(p)
     sinks: list[Sink] = []
     score = ScoreSink(truth, gate) if truth is not None else None
-    try:
-        if score is not None:
-            sinks.append(score)
-        if tracks_csv is not None:
-            sinks.append(TracksSink(tracks_csv))
-        if recording is not None:
-            sinks.append(RecordingSink(recording, tracker.name, clip, recorder_options, score))
-        if on_frame is not None:
-            sinks.append(CallbackSink(on_frame))
-    except BaseException:
-        _abort(sinks)
-        raise
-    summary = drive(clip, tracker, sinks, start=start, stop=stop)
+    with StopSignals() as signals:  # a signal while the outputs open: they are kept, empty
+        try:
+            if score is not None:
+                sinks.append(score)
+            if tracks_csv is not None:
+                sinks.append(TracksSink(tracks_csv))
+            if recording is not None:
+                sinks.append(RecordingSink(recording, tracker.name, clip, recorder_options, score))
+            if on_frame is not None:
+                sinks.append(CallbackSink(on_frame))
+        except BaseException:
+            _abort(sinks)
+            raise
+        summary = drive(clip, tracker, sinks, start=start, stop=stop, signals=signals)
     return replace(summary, scores=score.scores) if score is not None else summary
 
 

@@ -7,7 +7,7 @@ moves relative to the ground, and a lone point in clean sky is a target even whe
 (a hovering target amid ground clutter is lost: there is nothing to tell it from the ground).
 
 :class:`StaticClutter` labels each detection of a frame. Its scene position (from the
-accumulated camera shift, see :class:`wfviz.stages.registration.MotionEstimator`) is looked up in the
+accumulated camera shift, see :class:`wfviz.stages.registration.CameraMotion`) is looked up in the
 background-suppressed images of ``lag`` (±2) frames earlier: a spot of the ground was there
 already, about as bright (at least ``persist`` times as bright as it is there now, taking the
 largest of the four pixels around the position in both images), a moving target was not.

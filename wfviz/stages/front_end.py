@@ -183,17 +183,18 @@ class FrontEnd:
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
         kmap = k_map(camera) if k_map is not None and noise is not None else None
-        if gates is not None:
-            region = _with_boxes(region, gates(camera), valid, windows)
+        boxes = gates(camera) if gates is not None else []
+        full = _with_boxes(self._region, boxes, valid)  # the search region and confirmed gates
+        region = _with_boxes(region, boxes, valid, windows)
         if windows is not None and c.detection.mode != "cfar":
             # a global or box threshold is a statistic of the whole search region, not of the
             # windows (whose own statistics a bright target inflates): detect there, keep the
             # candidates inside the windows
-            dets = detect(suppressed, self._region, c.detection, self._zones, noise, change, kmap)
+            dets = detect(suppressed, full, c.detection, self._zones, noise, change, kmap)
             dets = dets.subset(sample_at(windows, dets.xy))
         else:
             dets = detect(suppressed, region, c.detection, self._zones, noise, change, kmap)
-        dets = score_detections(dets, img, self._region, c.detection, self._significance,
+        dets = score_detections(dets, img, full, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_changed = self.bad.update(raw, suppressed, dets.threshold)
         lap("detect")
@@ -215,7 +216,7 @@ class FrontEnd:
             lap("noise")
         region = self._region if gates is None else _with_boxes(self._region, gates(result.camera), result.valid)
         dets = detect(result.suppressed, region, c.detection, self._zones, noise, result.change)
-        dets = score_detections(dets, result.image, self._region, c.detection, self._significance,
+        dets = score_detections(dets, result.image, region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         lap("detect")
         return replace(result, region=region, noise=noise, detections=dets)

@@ -69,29 +69,27 @@ class GEWCTracker:
         timer = StageTimer()
         lap = timer.lap
         predicted: list = []
+        done = [False]  # the tracks were moved with the camera and predicted (once a frame)
         gate_k: list = [None]
 
-        def k_map(camera: CameraState | None) -> np.ndarray | None:  # camera known: predict
-            if not predicted:
+        def predict(camera: CameraState | None) -> list:  # once the camera motion is known
+            if not done[0]:
+                done[0] = True
                 if camera is not None:
                     self.manager.shift(*camera.shift)
                 predicted.extend(self.manager.predict(frame.index))
-            gate_k[0] = self._gate_thresholds(predicted)
+            return predicted
+
+        def k_map(camera: CameraState | None) -> np.ndarray | None:
+            gate_k[0] = self._gate_thresholds(predict(camera))
             return None if gate_k[0] is None else self._threshold_map(predicted, gate_k[0], frame.image.shape)
 
         def gates(camera: CameraState | None) -> list[tuple[slice, slice]]:  # confirmed gates
-            if not predicted:
-                if camera is not None:
-                    self.manager.shift(*camera.shift)
-                predicted.extend(self.manager.predict(frame.index))
-            return gate_boxes(predicted, frame.image.shape[:2])
+            return gate_boxes(predict(camera), frame.image.shape[:2])
 
         fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None,
                              gates=gates if GATES_CROSS_HORIZON else None)
-        if not predicted:  # k_map was not called
-            if fe.camera is not None:
-                self.manager.shift(*fe.camera.shift)
-            predicted.extend(self.manager.predict(frame.index))
+        predict(fe.camera)  # neither callback ran (no noise estimate, or both off)
         dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, fe.offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
