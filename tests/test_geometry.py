@@ -244,9 +244,9 @@ def test_a_confirmed_track_is_followed_below_the_horizon(cross, monkeypatch):
     from wfviz.io.frames import Frame
     from wfviz.synth.psf import add_gaussian_spot
     from wfviz.trackers.gewc import GEWCTracker
-    from wfviz.trackers.gewc import tracker as gewc_tracker
+    from wfviz.stages import front_end
 
-    monkeypatch.setattr(gewc_tracker, "GATES_CROSS_HORIZON", cross)
+    monkeypatch.setattr(front_end, "GATES_CROSS_HORIZON", cross)
     rng = np.random.default_rng(5)
     background, boundary = skyline_scene(rng)
     trk = GEWCTracker()

@@ -16,12 +16,9 @@ def recorder_class(tracker: str) -> type[Recorder]:
     return getattr(importlib.import_module(module), name)
 
 
-RECORDERS: dict[str, type[Recorder]] = {name: recorder_class(name) for name in TRACKERS}
-
-
 def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:
     """The logging adapter for ``tracker``, writing to ``path``."""
     return recorder_class(tracker)(path, tracker=tracker, **kwargs)  # type: ignore[arg-type]
 
 
-__all__ = ["RECORDERS", "Recorder", "open_recorder", "recorder_class", "track_color"]
+__all__ = ["Recorder", "open_recorder", "recorder_class", "track_color"]

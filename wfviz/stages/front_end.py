@@ -51,6 +51,9 @@ class FrontEndConfig(Protocol):
 
 
 SPATIAL_OVERALL = False  # the residual's tail calibration holds a floor over the whole frame
+#: confirmed tracks' gates (``gates`` of :meth:`FrontEnd.step`) are searched below the horizon
+#: too (False: the search region only, for ablations)
+GATES_CROSS_HORIZON = True
 CHANGE_OVERALL = True   # the change's does
 
 
@@ -183,7 +186,7 @@ class FrontEnd:
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
         kmap = k_map(camera) if k_map is not None and noise is not None else None
-        boxes = gates(camera) if gates is not None else []
+        boxes = gates(camera) if gates is not None and GATES_CROSS_HORIZON else []
         full = _with_boxes(self._region, boxes, valid)  # the search region and confirmed gates
         region = _with_boxes(region, boxes, valid, windows)
         if windows is not None and c.detection.mode != "cfar":
@@ -214,7 +217,8 @@ class FrontEnd:
             g = self.tail.update(est.significance(result.suppressed), self._region, overall=SPATIAL_OVERALL)
             noise = self._noise = replace(est, sigma=est.sigma * g)
             lap("noise")
-        region = self._region if gates is None else _with_boxes(self._region, gates(result.camera), result.valid)
+        boxes = gates(result.camera) if gates is not None and GATES_CROSS_HORIZON else []
+        region = _with_boxes(self._region, boxes, result.valid)
         dets = detect(result.suppressed, region, c.detection, self._zones, noise, result.change)
         dets = score_detections(dets, result.image, region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)

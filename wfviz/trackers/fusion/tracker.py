@@ -50,7 +50,6 @@ from wfviz.tracking import (EventKind, Measurements, Prediction, TrackEvent, Tra
 from wfviz.tracking.confirmation import DetectionDensity
 
 _BIG = 1e9
-GATES_CROSS_HORIZON = True  # as GEWC's (wfviz.trackers.gewc.tracker)
 DENSE_CROPS = 64  # more search crops than this: one full-frame crop is faster
 
 
@@ -216,7 +215,8 @@ class FusionTracker:
         confirmed = np.array([p.confirmed for p in preds], dtype=bool)
         active = np.array([not p.meeting for p in preds], dtype=bool)  # meeting tracks take nothing
         lap("associate")
-        gates = (lambda camera: gate_boxes(preds, shape[:2])) if GATES_CROSS_HORIZON else None
+        def gates(camera: object) -> list[tuple[slice, slice]]:  # confirmed gates, below the horizon too
+            return gate_boxes(preds, shape[:2])
 
         reason = ""
         if self._steps == 0:

@@ -40,10 +40,6 @@ class GEWCResult(FrontEndTrackResult):
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
 
 
-#: confirmed tracks' gates are searched below the horizon too (False: the search region only, for ablations)
-GATES_CROSS_HORIZON = True
-
-
 class GEWCTracker:
     """Streams frames through the GEWC pipeline; ``step`` returns a :class:`GEWCResult`."""
 
@@ -88,7 +84,7 @@ class GEWCTracker:
             return gate_boxes(predict(camera), frame.image.shape[:2])
 
         fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None,
-                             gates=gates if GATES_CROSS_HORIZON else None)
+                             gates=gates)
         predict(fe.camera)  # neither callback ran (no noise estimate, or both off)
         dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
