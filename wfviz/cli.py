@@ -1,4 +1,4 @@
-"""Command line: ``wfviz record | track | demo | config``. Wiring only; no stage work here."""
+"""Command line: ``wfviz record | track | demo | tune | eval | config`` and more. Wiring only; no stage work here."""
 
 from __future__ import annotations
 
@@ -439,6 +439,126 @@ def bench_(
         raise typer.Exit(128 + result.signal)
 
 
+@app.command()
+@_guarded
+def tune(
+    clips: Annotated[Optional[list[str]], typer.Argument(help="Clips to tune on, each CLIP or CLIP=TRUTH (truth: TRUTH, else truth.csv in or beside the clip; synth: clips bring their own).", show_default=False)] = None,
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Study folder: trials.csv, best.toml, report.md, study.rrd, the journal (the same command resumes it).")] = None,
+    tracker: TrackerOpt = "gewc",
+    space: Annotated[Optional[Path], typer.Option("--space", help="Search space TOML (default: the tracker's; see --print-space).")] = None,
+    config: Annotated[Optional[Path], typer.Option("--config", help="Configuration the trials start from (default: the defaults); trial 0 runs it as it is.")] = None,
+    trials: Annotated[int, typer.Option("--trials", min=1, help="Finished trials the study should have (a resumed study adds the rest).")] = 20,
+    objective: Annotated[str, typer.Option("--objective", help="mota, idf1 (maximised) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
+    validate: Annotated[Optional[list[str]], typer.Option("--validate", help="A clip scored in every trial but never used to choose (repeat for more).", show_default=False)] = None,
+    folds: Annotated[int, typer.Option("--folds", min=0, help="Without --validate: leave-clips-out cross-validation of the chosen trial over K folds of the tune clips (report.md).")] = 0,
+    workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Trials run at a time (local processes, or Ray tasks with --ray). Default: this machine's cores.", show_default=False)] = None,
+    seed: Annotated[int, typer.Option("--seed", help="Sampler seed (same seed and --workers: same trials).")] = 0,
+    ray: Annotated[Optional[str], typer.Option("--ray", help="Run the trials on a Ray cluster at this address (`--ray` alone: a local Ray). Needs pip install \"wfviz[ray]\".", show_default=False)] = None,
+    record_best: Annotated[int, typer.Option("--record-best", min=0, help="Record the K best trials (and trial 0) on every clip as .rrd with truth.")] = 0,
+    stop: StopOpt = None,
+    gate: GateOpt = 3.0,
+    no_cache: Annotated[bool, typer.Option("--no-cache", help="Run every trial's front end again (the same results, slower; for timing the cache).")] = False,
+    print_space: Annotated[bool, typer.Option("--print-space", help="Print the tracker's default search space as TOML and exit.")] = False,
+) -> None:
+    """Search a tracker's parameters against ground truth (Optuna), validate on held-back clips, link every trial to its scores and recordings."""
+    from wfviz.config import load_config
+    from wfviz.trackers import default_space
+    from wfviz.tune.space import load_space, parse_space, space_to_toml
+    from wfviz.tune.study import OBJECTIVES
+
+    if tracker not in TRACKERS:
+        raise ValueError(f"unknown tracker '{tracker}' (available: {', '.join(TRACKERS)})")
+    cls = config_class(tracker)
+    if space is not None:
+        search = load_space(space, cls)
+    else:
+        default = default_space(tracker)
+        if default is None:
+            raise ValueError(f"tracker '{tracker}' has no default search space; give --space FILE")
+        search = parse_space(default, cls)
+    if print_space:
+        sys.stdout.write(space_to_toml(search, tracker))
+        return
+    if objective not in OBJECTIVES:
+        raise ValueError(f"--objective: unknown '{objective}' (available: {', '.join(OBJECTIVES)})")
+    if not clips:
+        raise ValueError("no clip to tune on (give at least one CLIP)")
+    if out_dir is None:
+        raise ValueError("--out DIR is required (the study's folder)")
+    if out_dir.exists() and not out_dir.is_dir():
+        raise OutputError(f"{out_dir}: is a file, expected the study's folder")
+    if folds == 1:
+        raise ValueError("--folds: give at least 2 folds (or 0 for none)")
+    if folds and validate:
+        raise ValueError("--folds and --validate: choose one (validation clips are the stricter check)")
+    if folds > len(clips):
+        raise ValueError(f"--folds {folds}: more folds than tune clips ({len(clips)})")
+    base = load_config(config, cls)
+    from wfviz.tune.session import prepare, tune as run_tune
+
+    use_ray = ray is not None
+    address = None if ray in (None, "", "local") else ray
+    n_workers = workers or (os.cpu_count() or 1)
+    settings = prepare(tracker, list(clips), list(validate or []), out_dir, search, base, objective=objective,
+                       trials=trials, seed=seed, workers=n_workers, stop=stop, gate=gate,
+                       use_ray=use_ray, ray_address=address, cache=not no_cache)
+    metric = OBJECTIVES[objective][0][0]
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[best]}"), TimeRemainingColumn(),
+                  console=err, transient=True, disable=not err.is_terminal) as progress:
+        task = progress.add_task("trials", total=trials, best="")
+
+        def on_batch(state) -> None:  # noqa: ANN001
+            done = [t for t in state.trials if t.values is not None]
+            best = ""
+            if done and objective != "pareto":
+                b = max(done, key=lambda t: t.values[0])
+                best = f"best {metric} {b.values[0]:.3f} (trial {b.number})"
+            elif done:
+                best = f"{len(done)} scored"
+            progress.update(task, completed=len(state.trials), best=best)
+
+        def on_stage(name: str) -> None:
+            progress.update(task, description=name)
+
+        result = run_tune(settings, out_dir, record_best=record_best, folds=folds, on_batch=on_batch,
+                          on_stage=on_stage)
+    _tune_summary(result, metric)
+    if result.state.interrupted:
+        raise typer.Exit(128 + signal.SIGINT)
+
+
+def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
+    from wfviz.tune.outputs import ranked
+
+    state, settings = result.state, result.settings
+    done = [t for t in state.trials if t.values is not None]
+    failed = len(state.trials) - len(done)
+    how = "[yellow]interrupted[/]" if state.interrupted else "done"
+    out.print(f"{how}: {len(state.trials)} trials ({len(done)} scored, {failed} failed; {state.ran} this run)",
+              highlight=False)
+    for note in state.notes:
+        out.print(f"  note: {note}", highlight=False, markup=False)
+    has_val = any(c.role == "validate" for c in settings.clips)
+    best = ranked(state.trials, settings.objective)
+    base = [t for t in done if t.user_attrs.get("base")]
+    rows = base + [t for t in best[:5] if t not in base]
+    for t in rows:
+        tune_s = t.user_attrs["tune"]
+        line = f"  trial {t.number:>4}{' (base)' if t.user_attrs.get('base') else '       '}  tune " + \
+            " ".join(f"{m} {tune_s[m]:.3f}" for m in ("mota", "idf1", "pd", "fa"))
+        if has_val:
+            v = t.user_attrs["validate"]
+            line += "  | validate " + " ".join(f"{m} {v[m]:.3f}" for m in ("mota", "idf1", "pd", "fa"))
+        out.print(line, highlight=False, markup=False)
+    for f in result.files:
+        if f.suffix in (".toml", ".csv", ".md", ".rrd") and f.parent == result.files[0].parent:
+            out.print(f"  {f.name:<12} {f}", highlight=False, markup=False)
+    recs = [f for f in result.files if f.parent.name == "recordings"]
+    if recs:
+        out.print(f"  recordings: {len(recs)} in {recs[0].parent}", highlight=False, markup=False)
+
+
 @app.command("config")
 def show_config(tracker: TrackerOpt = "gewc") -> None:
     """Print the default configuration as TOML (edit it and pass it with --config)."""
@@ -447,8 +567,24 @@ def show_config(tracker: TrackerOpt = "gewc") -> None:
     sys.stdout.write(config_to_toml(config_class(tracker)()))
 
 
+def _ray_flag(argv: list[str]) -> list[str]:
+    """``wfviz tune ... --ray`` without an address: a local Ray (the option takes a value)."""
+    import re
+
+    out = list(argv)
+    for i, a in enumerate(out):
+        if a == "--ray":
+            nxt = out[i + 1] if i + 1 < len(out) else None
+            if nxt is None or not re.fullmatch(r"auto|local|ray://\S+|[\w.\-]+:\d+", nxt):
+                out.insert(i + 1, "local")
+            break
+    return out
+
+
 def main() -> None:
     """Console-script entry point."""
+    if "tune" in sys.argv[1:3] and "--ray" in sys.argv:
+        sys.argv[:] = _ray_flag(sys.argv)
     app()
 
 

@@ -64,6 +64,9 @@ class DefectsConfig:
     spike_ratio: float = field(default=0.8, metadata=value_range(0.0, 1.0))
     rate: float = field(default=0.3, metadata=value_range(0.01, 1.0))
     flag_level: float = field(default=0.75, metadata=value_range(0.01, 1.0))
+    # a spike above level + k_sigma local noise σ (the "cfar" detection's typical threshold at
+    # this k) is a hot-pixel candidate; global/local detection: the detection's own threshold
+    k_sigma: float = field(default=4.0, metadata=value_range(0.0, None))
 
 
 @dataclass(frozen=True)
@@ -207,6 +210,18 @@ class FrontEndSections:
     detection: DetectionConfig = DetectionConfig()
 
 
+#: ``wfviz tune``'s default search space of the sections GEWC and fusion share (the TOML form
+#: of :mod:`wfviz.tune.space`): the detection threshold and the sequential test's trade-off
+SHARED_SEARCH_SPACE = {
+    "detection": {"k_sigma": {"low": 3.0, "high": 6.0}},
+    "tracking": {
+        "false_tracks_per_1000": {"low": 0.05, "high": 20.0, "log": True},
+        "p_detect": {"low": 0.6, "high": 0.98},
+        "min_motion": {"low": 0.5, "high": 4.0},
+    },
+}
+
+
 def _closest(name: str, options: list[str]) -> str:
     match = difflib.get_close_matches(name, options, n=1)
     return f" (did you mean '{match[0]}'?)" if match else f" (known: {', '.join(options)})"
@@ -298,6 +313,19 @@ def config_from_dict(data: dict[str, Any], cls: type | None = None) -> Any:
     return config
 
 
+def read_toml(path: Path, what: str) -> dict[str, Any]:
+    """The TOML file ``path`` (a ``what``: "config file", ...) parsed; ConfigError naming the
+    file when it is missing, a folder or not valid TOML. A byte-order mark is accepted."""
+    try:
+        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as some editors save
+    except FileNotFoundError:
+        raise ConfigError(f"{path}: no such {what}") from None
+    except IsADirectoryError:
+        raise ConfigError(f"{path}: is a folder, not a {what}") from None
+    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
+        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+
+
 def load_config(path: str | Path | None, cls: type | None = None) -> Any:
     """Load a TOML config file for ``cls``; None gives the defaults."""
     if path is None:
@@ -305,14 +333,7 @@ def load_config(path: str | Path | None, cls: type | None = None) -> Any:
             from wfviz.trackers.gewc.config import GEWCConfig as cls
         return cls()
     path = Path(path)
-    try:
-        data = tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as some editors save
-    except FileNotFoundError:
-        raise ConfigError(f"{path}: no such config file") from None
-    except IsADirectoryError:
-        raise ConfigError(f"{path}: is a folder, not a config file") from None
-    except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
-        raise ConfigError(f"{path}: not valid TOML ({exc})") from None
+    data = read_toml(path, "config file")
     try:
         return config_from_dict(data, cls)
     except ConfigError as exc:

@@ -163,6 +163,13 @@ def blobness(image: np.ndarray, xy: np.ndarray, sigma: float) -> np.ndarray:
     return ratio.reshape(n, -1).max(axis=1)
 
 
+def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
+    """The typical "cfar" threshold of a frame (DN): the median over the noise grid of
+    level + ``k_sigma`` σ (inf when no tile is known)."""
+    grid = noise.level_grid + k_sigma * noise.sigma_grid
+    return float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
+
+
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
            zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None,
            change: np.ndarray | None = None, k_map: np.ndarray | None = None) -> Detections:
@@ -190,8 +197,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         res = residual.astype(np.float32, copy=False)
         thr_map = (cv2.scaleAdd(noise.sigma, float(cfg.k_sigma), noise.level) if k_map is None
                    else cv2.add(cv2.multiply(noise.sigma, k_map), noise.level))
-        grid = noise.level_grid + cfg.k_sigma * noise.sigma_grid  # the typical threshold, for the record
-        thr = float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
+        thr = typical_threshold(noise, cfg.k_sigma)  # for the record
         excess = cv2.subtract(res, thr_map)
         z_of = (noise.level, noise.sigma)
     elif cfg.mode == "global" and zones:

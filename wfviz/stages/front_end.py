@@ -30,7 +30,7 @@ from wfviz.config import (CircleConfig, DefectsConfig, DetectionConfig, HorizonC
                           SuppressionConfig, TrackingConfig)
 from wfviz.stages.background import TemporalBackground, change as scene_change, gain, suppress_background
 from wfviz.stages.defects import BadPixels
-from wfviz.stages.detection import Detections, detect, sample_at, score_detections
+from wfviz.stages.detection import Detections, detect, sample_at, score_detections, typical_threshold
 from wfviz.stages.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.stages.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.stages.noise import NoiseEstimate, NoiseModel, TailCalibration
@@ -58,16 +58,10 @@ CHANGE_OVERALL = True   # the change's does
 
 
 @dataclass(frozen=True)
-class FrontEndResult:
-    """One frame through the shared stages.
-
-    ``image``: the frame with defects replaced (``raw``: as read); ``valid``: inside the imaging
-    area; ``region``: where detections are searched; ``zones``: the parts of it with their own
-    noise statistics (None: one); ``offset``: the camera's (scene point s is at s + offset);
-    ``suppressed``: the background-suppressed residual; ``noise``: its local level and σ (None
-    outside "cfar" detection); ``change``: the change significance of every pixel (None on the
-    first frame); ``detections``: this frame's, with significance and change.
-    """
+class PreparedFrame:
+    """A frame through the stages before detection (:meth:`FrontEnd.prepare`; the fields are
+    described at :class:`FrontEndResult`; ``region`` here without any tracker's windows or
+    gates)."""
 
     image: np.ndarray
     raw: np.ndarray
@@ -84,9 +78,24 @@ class FrontEndResult:
     suppressed: np.ndarray
     noise: NoiseEstimate | None
     change: np.ndarray | None
-    detections: Detections
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
+
+
+@dataclass(frozen=True)
+class FrontEndResult(PreparedFrame):
+    """One frame through the shared stages: a :class:`PreparedFrame` (``region`` here with the
+    tracker's windows and gates) and this frame's ``detections``, with significance and change.
+
+    ``image``: the frame with defects replaced (``raw``: as read); ``valid``: inside the imaging
+    area; ``region``: where detections are searched; ``zones``: the parts of it with their own
+    noise statistics (None: one); ``offset``: the camera's (scene point s is at s + offset);
+    ``suppressed``: the background-suppressed residual; ``noise``: its local level and σ (None
+    outside "cfar" detection); ``change``: the change significance of every pixel (None on the
+    first frame).
+    """
+
+    detections: Detections
 
 
 def _unknown_at(change: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -147,7 +156,32 @@ class FrontEnd:
         ``k_map(camera)``: called once the camera motion is known, the detection threshold of
         every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`).
         ``gates(camera)``: likewise, boxes (row and column slices) searched besides the search
-        region (confirmed tracks' gates, which may reach below the horizon)."""
+        region (confirmed tracks' gates, which may reach below the horizon).
+
+        The same as :meth:`finish` of :meth:`prepare`: what comes before the detection does not
+        depend on the tracks when the frame is searched whole in "cfar" mode
+        (:attr:`independent_of_tracks`), so it can be computed once and replayed."""
+        return self.finish(self.prepare(raw, lap, windows is None, update_horizon), lap, windows, k_map, gates)
+
+    @staticmethod
+    def prepare_key(config: FrontEndConfig) -> tuple:
+        """Every configuration value :meth:`prepare` reads: two configurations with the same
+        key prepare every frame the same (``wfviz tune``'s front-end cache is keyed by it)."""
+        c = config
+        return (c.defects, c.circle, c.horizon, c.suppression, c.noise, c.detection.mode,
+                c.tracking.compensate_motion)
+
+    @property
+    def independent_of_tracks(self) -> bool:
+        """Whether :meth:`prepare` of frames searched whole gives the same whatever the tracks
+        (in "cfar" mode; with a global or box threshold the defect stage takes the detection's
+        threshold, which the tracks' gates change)."""
+        return self.noise is not None
+
+    def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
+                update_horizon: bool = True) -> PreparedFrame:
+        """The stages before detection (:meth:`step`); ``whole``: the frame is searched whole
+        (no windows: the noise statistics may be re-estimated)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -170,40 +204,57 @@ class FrontEnd:
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
         noise = change = None
-        region = self._region if windows is None else self._region & windows
         self._frame += 1
         moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
         due = moved or mask_changed or horizon_updated or (self._frame - 1) % c.noise.every == 0
+        bad_changed = False
         if self.noise is not None:
-            if (windows is None and due) or self._noise is None:
+            if (whole and due) or self._noise is None:
                 est = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
                 g = self.tail.update(est.significance(suppressed), self._region, overall=SPATIAL_OVERALL)
                 self._noise = replace(est, sigma=est.sigma * g)
             noise = self._noise
             lap("noise")
-            change = self._change(raw, img, suppressed, camera, windows is None and due)
+            change = self._change(raw, img, suppressed, camera, whole and due)
             if change is not None and len(self.bad.flagged):
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
+            # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
+            bad_changed = self.bad.update(raw, suppressed, typical_threshold(noise, c.defects.k_sigma))
+            lap("defects")
+        return PreparedFrame(img, raw, mask, mask_changed, valid, self.circle, horizon, horizon_updated,
+                             self._region, self._zones, camera, self._offset.copy(), suppressed, noise,
+                             change, self.bad.flagged, bad_changed)
+
+    def finish(self, p: PreparedFrame, lap: Callable[[str], None], windows: np.ndarray | None = None,
+               k_map: Callable[[CameraState | None], np.ndarray | None] | None = None,
+               gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
+        """Detection on a frame from :meth:`prepare` (:meth:`step`)."""
+        c = self.config
+        noise, camera, valid = p.noise, p.camera, p.valid
+        region = p.region if windows is None else p.region & windows
         kmap = k_map(camera) if k_map is not None and noise is not None else None
         boxes = gates(camera) if gates is not None and GATES_CROSS_HORIZON else []
-        full = _with_boxes(self._region, boxes, valid)  # the search region and confirmed gates
+        full = _with_boxes(p.region, boxes, valid)  # the search region and confirmed gates
         region = _with_boxes(region, boxes, valid, windows)
         if windows is not None and c.detection.mode != "cfar":
             # a global or box threshold is a statistic of the whole search region, not of the
             # windows (whose own statistics a bright target inflates): detect there, keep the
             # candidates inside the windows
-            dets = detect(suppressed, full, c.detection, self._zones, noise, change, kmap)
+            dets = detect(p.suppressed, full, c.detection, p.zones, noise, p.change, kmap)
             dets = dets.subset(sample_at(windows, dets.xy))
         else:
-            dets = detect(suppressed, region, c.detection, self._zones, noise, change, kmap)
-        dets = score_detections(dets, img, full, c.detection, self._significance,
+            dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap)
+        dets = score_detections(dets, p.image, full, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
-        bad_changed = self.bad.update(raw, suppressed, dets.threshold)
+        bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
+        if noise is None:  # the defect stage takes the detection's threshold
+            bad_changed = self.bad.update(p.raw, p.suppressed, dets.threshold)
+            bad_pixels = self.bad.flagged
         lap("detect")
-        return FrontEndResult(img, raw, mask, mask_changed, valid, self.circle, horizon, horizon_updated,
-                              region, self._zones, camera, self._offset.copy(), suppressed, noise,
-                              change, dets, self.bad.flagged, bad_changed)
+        return FrontEndResult(p.image, p.raw, p.mask, p.mask_changed, valid, p.circle, p.horizon,
+                              p.horizon_updated, region, p.zones, camera, p.offset, p.suppressed, noise,
+                              p.change, bad_pixels, bad_changed, dets)
 
     def redetect(self, result: FrontEndResult, lap: Callable[[str], None],
                  gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:

@@ -10,28 +10,30 @@ from typing import Any, NamedTuple
 from wfviz.config import load_config
 from wfviz.trackers.base import FrameResult, Tracker
 from wfviz.trackers.fusion import FusionTracker
-from wfviz.trackers.fusion.config import FusionConfig
+from wfviz.trackers.fusion.config import SEARCH_SPACE as FUSION_SPACE, FusionConfig
 from wfviz.trackers.gewc import GEWCTracker
-from wfviz.trackers.gewc.config import GEWCConfig
+from wfviz.trackers.gewc.config import SEARCH_SPACE as GEWC_SPACE, GEWCConfig
 from wfviz.trackers.starfield import StarfieldTracker
-from wfviz.trackers.starfield.config import StarfieldConfig
+from wfviz.trackers.starfield.config import SEARCH_SPACE as STARFIELD_SPACE, StarfieldConfig
 from wfviz.trackers.tbd import TBDTracker
-from wfviz.trackers.tbd.config import TBDConfig
+from wfviz.trackers.tbd.config import SEARCH_SPACE as TBD_SPACE, TBDConfig
 
 class TrackerEntry(NamedTuple):
-    """One registered tracker: its class, its config class and its recorder adapter
-    (``module:Class`` under ``wfviz.record``)."""
+    """One registered tracker: its class, its config class, its recorder adapter
+    (``module:Class`` under ``wfviz.record``) and ``wfviz tune``'s default search space (the
+    TOML form of :mod:`wfviz.tune.space`; None: the tracker has none)."""
 
     tracker: type
     config: type
     recorder: str
+    space: dict | None = None
 
 
 TRACKERS: dict[str, TrackerEntry] = {
-    "gewc": TrackerEntry(GEWCTracker, GEWCConfig, "wfviz.record.gewc:GEWCRecorder"),
-    "fusion": TrackerEntry(FusionTracker, FusionConfig, "wfviz.record.fusion:FusionRecorder"),
-    "starfield": TrackerEntry(StarfieldTracker, StarfieldConfig, "wfviz.record.starfield:StarfieldRecorder"),
-    "tbd": TrackerEntry(TBDTracker, TBDConfig, "wfviz.record.tbd:TBDRecorder"),
+    "gewc": TrackerEntry(GEWCTracker, GEWCConfig, "wfviz.record.gewc:GEWCRecorder", GEWC_SPACE),
+    "fusion": TrackerEntry(FusionTracker, FusionConfig, "wfviz.record.fusion:FusionRecorder", FUSION_SPACE),
+    "starfield": TrackerEntry(StarfieldTracker, StarfieldConfig, "wfviz.record.starfield:StarfieldRecorder", STARFIELD_SPACE),
+    "tbd": TrackerEntry(TBDTracker, TBDConfig, "wfviz.record.tbd:TBDRecorder", TBD_SPACE),
 }
 
 
@@ -47,6 +49,11 @@ def config_class(name: str) -> type:
     return _entry(name).config
 
 
+def default_space(name: str) -> dict | None:
+    """``wfviz tune``'s default search space of tracker ``name`` (TOML form; None: none)."""
+    return _entry(name).space
+
+
 def make_tracker(name: str, config: Any | None = None) -> Tracker:
     """Instantiate tracker ``name`` with its config (defaults when None)."""
     e = _entry(name)
@@ -58,6 +65,6 @@ def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
     return make_tracker(name, load_config(config_file, config_class(name)))
 
 
-__all__ = ["TRACKERS", "TrackerEntry", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "TBDTracker", "Tracker", "config_class",
+__all__ = ["TRACKERS", "TrackerEntry", "FrameResult", "FusionTracker", "GEWCTracker", "StarfieldTracker", "TBDTracker", "Tracker", "config_class", "default_space",
            "load_tracker",
            "make_tracker"]

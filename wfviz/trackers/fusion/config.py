@@ -5,7 +5,7 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from wfviz.config import ConfigError, FrontEndSections, KalmanConfig, TrackingConfig, value_range
+from wfviz.config import SHARED_SEARCH_SPACE, ConfigError, FrontEndSections, KalmanConfig, TrackingConfig, value_range
 
 
 @dataclass(frozen=True)
@@ -53,3 +53,17 @@ class FusionConfig(FrontEndSections):
         if getattr(t, "meeting_misses", False):
             raise ConfigError("tracking.meeting_misses is not supported by the fusion tracker "
                               "(it associates in its own search windows)")
+
+
+#: ``wfviz tune``'s default search space (:mod:`wfviz.tune.space`): detection and the
+#: sequential test as for GEWC, and the paper's feature weights (eq. 10)
+SEARCH_SPACE = {
+    **SHARED_SEARCH_SPACE,
+    "fusion": {
+        "alpha": {"low": 0.0, "high": 1.0},
+        "beta": {"low": 0.0, "high": 1.0},
+        "gamma": {"low": 0.0, "high": 1.0},
+        "max_cost": {"low": 0.3, "high": 2.0},
+    },
+    "kalman": {"q": {"low": 0.02, "high": 2.0, "log": True}},
+}

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from wfviz.config import ClutterConfig, ConfigError, FrontEndSections, KalmanConfig, TrackingConfig, value_range
+from wfviz.config import (SHARED_SEARCH_SPACE, ClutterConfig, ConfigError, FrontEndSections, KalmanConfig,
+                          TrackingConfig, value_range)
 
 
 @dataclass(frozen=True)
@@ -37,3 +38,20 @@ class GEWCConfig(FrontEndSections):
         if c.delete_static < c.max_static:
             raise ConfigError(f"clutter.delete_static ({c.delete_static}) must not be below "
                               f"clutter.max_static ({c.max_static})")
+
+
+#: ``wfviz tune``'s default search space (the TOML form, :mod:`wfviz.tune.space`): the values
+#: that move the detection/false-track trade-off most; the rest are the papers' or measured
+SEARCH_SPACE = {
+    **SHARED_SEARCH_SPACE,
+    "tracking": {
+        **SHARED_SEARCH_SPACE["tracking"],
+        "static_change_rate": {"low": 0.01, "high": 0.3, "log": True},
+        "target_change_rate": {"low": 0.2, "high": 0.9},
+    },
+    "kalman": {
+        "q": {"low": 0.02, "high": 2.0, "log": True},
+        "r": {"low": 0.05, "high": 2.0, "log": True},
+        "gate_max": {"low": 8.0, "high": 30.0},
+    },
+}

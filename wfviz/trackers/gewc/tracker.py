@@ -45,10 +45,12 @@ class GEWCTracker:
 
     name = "gewc"
 
-    def __init__(self, config: GEWCConfig | None = None) -> None:
+    def __init__(self, config: GEWCConfig | None = None, front_end: FrontEnd | None = None) -> None:
+        """``front_end``: the shared stages to use (default: a new :class:`FrontEnd` of
+        ``config``; ``wfviz tune`` passes one that replays frames it prepared once)."""
         self.config = config or GEWCConfig()
         c = self.config
-        self.front = FrontEnd(c)
+        self.front = front_end if front_end is not None else FrontEnd(c)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
         self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma,
                                     clutter_rule=c.clutter if self.clutter is not None else None)

@@ -110,3 +110,16 @@ class StarfieldConfig:
             raise ConfigError(f"chains.min_speed ({c.min_speed}) must not exceed chains.max_speed ({c.max_speed})")
         if s.min_area > s.max_area:
             raise ConfigError(f"segmentation.min_area ({s.min_area}) must not exceed segmentation.max_area ({s.max_area})")
+
+
+#: ``wfviz tune``'s default search space (:mod:`wfviz.tune.space`)
+SEARCH_SPACE = {
+    "segmentation": {"k_sigma": {"low": 3.0, "high": 6.0}},
+    "chains": {
+        "length": {"low": 3, "high": 8},
+        "gate": {"low": 1.5, "high": 6.0},
+        "max_turn": {"low": 15.0, "high": 90.0},
+    },
+    "resegment": {"k_sigma": {"low": 2.5, "high": 5.0}},
+    "tracking": {"max_misses": {"low": 3, "high": 20}},
+}

@@ -111,3 +111,15 @@ class TBDConfig:
         if min(r.tile, r.window) < side:
             raise ConfigError(f"regions.tile and regions.window must be at least the PSF patch "
                               f"(2 * model.patch_radius + 1 = {side} px)")
+
+
+#: ``wfviz tune``'s default search space (:mod:`wfviz.tune.space`)
+SEARCH_SPACE = {
+    "model": {"amplitude_mean": {"low": 2.0, "high": 8.0}, "process_noise": {"low": 0.005, "high": 0.5, "log": True}},
+    "filter": {
+        "p_birth": {"low": 1e-4, "high": 0.02, "log": True},
+        "p_death": {"low": 0.01, "high": 0.3, "log": True},
+    },
+    "regions": {"candidate_k": {"low": 3.0, "high": 6.0}},
+    "tracking": {"tentative_p": {"low": 0.05, "high": 0.5}},
+}

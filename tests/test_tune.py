@@ -1,0 +1,303 @@
+"""`wfviz tune` through the CLI: a small study on short synthetic clips, its files, resume,
+failing and interrupted trials, validation columns, the front-end cache and the reproduction
+of the best trial with `wfviz track` + `wfviz eval`."""
+
+from __future__ import annotations
+
+import csv
+import os
+import signal
+import subprocess
+import sys
+import time
+import tomllib
+from collections import defaultdict
+from pathlib import Path
+
+import pytest
+from rerun.chunk import RrdReader
+from typer.testing import CliRunner
+
+from wfviz.cli import app
+from wfviz.evaluate import evaluate
+from wfviz.trackers import TRACKERS, config_class, default_space
+from wfviz.tune.space import load_space, parse_space
+
+TUNE = ["synth:fov70-maneuver:0", "synth:uniform-50hz:0"]
+VALIDATE = "synth:fov70-four-targets:0"
+STOP = "24"
+SPACE = """
+[detection]
+k_sigma = { low = 3.0, high = 6.0 }
+[tracking]
+false_tracks_per_1000 = { low = 0.05, high = 20.0, log = true }
+p_detect = { low = 0.6, high = 0.98 }
+min_motion = { low = 0.5, high = 4.0 }
+"""
+
+
+def wfviz(*args: str, cwd: Path, **kw) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True,
+                          text=True, timeout=600, **kw)
+
+
+def rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+@pytest.fixture(scope="module")
+def study(tmp_path_factory):
+    """A 6-trial study (2 tune clips, 1 validation clip), then resumed to 8 trials."""
+    cwd = tmp_path_factory.mktemp("tune")
+    (cwd / "space.toml").write_text(SPACE)
+    args = ["tune", *TUNE, "--validate", VALIDATE, "--out", "st", "--space", "space.toml",
+            "--stop", STOP, "--workers", "1", "--seed", "3"]
+    t0 = time.perf_counter()
+    first = wfviz(*args, "--trials", "6", cwd=cwd)
+    seconds = time.perf_counter() - t0
+    assert first.returncode == 0, first.stderr
+    six = rows(cwd / "st" / "trials.csv")
+    second = wfviz(*args, "--trials", "8", cwd=cwd)
+    assert second.returncode == 0, second.stderr
+    return cwd, six, first, second, seconds
+
+
+def test_study_files_and_columns(study):
+    cwd, six, first, _, seconds = study
+    assert seconds < 120, f"a 6-trial study on 24-frame clips took {seconds:.0f} s"
+    st = cwd / "st"
+    for name in ("trials.csv", "best.toml", "report.md", "study.rrd", "study.journal", "history.png"):
+        assert (st / name).is_file(), name
+    assert not (st / "work").exists()
+    assert len(six) == 6 and all(r["state"] == "complete" for r in six)
+    head = list(six[0])
+    for col in ("trial", "state", "seconds", "detection.k_sigma", "tracking.p_detect",
+                "tune_mota", "tune_idf1", "tune_pd", "tune_fa", "validate_mota", "validate_fa",
+                "fov70-maneuver-0_mota", "uniform-50hz-0_mota", "fov70-four-targets-0_mota"):
+        assert col in head, col
+    # trial 0 is the defaults
+    assert six[0]["base"] == "1" and float(six[0]["detection.k_sigma"]) == 4.0
+    # the averages are the means of the per-clip scores, the validation clip apart
+    for r in six:
+        mean = (float(r["fov70-maneuver-0_mota"]) + float(r["uniform-50hz-0_mota"])) / 2
+        assert float(r["tune_mota"]) == pytest.approx(mean)
+        assert float(r["validate_mota"]) == pytest.approx(float(r["fov70-four-targets-0_mota"]))
+    # params differ between trials and stay inside the space
+    ks = [float(r["detection.k_sigma"]) for r in six]
+    assert len(set(ks)) == 6 and all(3.0 <= k <= 6.0 for k in ks)
+    report = (st / "report.md").read_text()
+    assert "validation" in report and "gap" in report
+    assert "trial" in first.stdout and "validate mota" in first.stdout
+
+
+def test_resume_adds_trials_and_keeps_the_first(study):
+    cwd, six, _, second, _ = study
+    eight = rows(cwd / "st" / "trials.csv")
+    assert len(eight) == 8
+    strip = lambda r: {k: v for k, v in r.items() if k != "seconds"}  # noqa: E731
+    assert [strip(r) for r in eight[:6]] == [strip(r) for r in six]
+    assert "2 this run" in second.stdout
+
+
+def test_same_seed_same_trials(study, tmp_path):
+    cwd, six, *_ = study
+    (tmp_path / "space.toml").write_text(SPACE)
+    proc = wfviz("tune", *TUNE, "--validate", VALIDATE, "--out", "again", "--space", "space.toml",
+                 "--stop", STOP, "--workers", "1", "--seed", "3", "--trials", "4", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    again = rows(tmp_path / "again" / "trials.csv")
+    for a, b in zip(again, six[:4]):
+        for k in ("detection.k_sigma", "tracking.p_detect", "tune_mota", "validate_mota"):
+            assert a[k] == b[k], k
+
+
+def test_best_toml_reproduces_the_reported_score(study, tmp_path):
+    cwd, *_ = study
+    st = cwd / "st"
+    best_trial = max(rows(st / "trials.csv"), key=lambda r: (float(r["tune_mota"]), -int(r["trial"])))
+    header = (st / "best.toml").read_text().splitlines()[0]
+    assert f"trial {best_trial['trial']} " in header
+    tomllib.loads((st / "best.toml").read_text())  # valid TOML
+    for clip, label in zip(TUNE, ("fov70-maneuver-0", "uniform-50hz-0")):
+        proc = wfviz("track", clip, "--config", str(st / "best.toml"), "--tracks", "t.csv", "--stop", STOP,
+                     cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        result = evaluate(tmp_path / "t.csv", st / "truth" / f"{label}.csv")
+        assert result.mota == float(best_trial[f"{label}_mota"])
+        assert result.fa_per_frame == float(best_trial[f"{label}_fa"])
+
+
+def test_study_recording_has_trial_timeline(study):
+    cwd, *_ = study
+    trials: dict[str, set[int]] = defaultdict(set)
+    static = set()
+    for chunk in RrdReader(cwd / "st" / "study.rrd").stream():
+        if chunk.is_static:
+            static.add(chunk.entity_path)
+            continue
+        batch = chunk.to_record_batch()
+        if "trial" in batch.schema.names:
+            trials[chunk.entity_path].update(batch.column("trial").to_pylist())
+    for entity in ("/study/tune/mota", "/study/validate/mota", "/study/params/detection.k_sigma",
+                   "/study/trials", "/study/log"):
+        assert trials.get(entity) == set(range(8)), entity
+    assert "/study/pareto" in static
+
+
+def test_cache_gives_the_same_trials(tmp_path):
+    (tmp_path / "space.toml").write_text(SPACE)
+    out = {}
+    for name, extra in (("cached", []), ("plain", ["--no-cache"])):
+        proc = wfviz("tune", *TUNE, "--out", name, "--space", "space.toml", "--stop", "16",
+                     "--workers", "1", "--trials", "3", *extra, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        out[name] = [{k: v for k, v in r.items() if k != "seconds"} for r in rows(tmp_path / name / "trials.csv")]
+    assert out["cached"] == out["plain"]
+
+
+def test_pareto_objective_writes_the_front(tmp_path):
+    (tmp_path / "space.toml").write_text(SPACE)
+    proc = wfviz("tune", *TUNE, "--out", "p", "--space", "space.toml", "--stop", "16", "--workers", "1",
+                 "--trials", "5", "--objective", "pareto", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    front = rows(tmp_path / "p" / "pareto.csv")
+    every = rows(tmp_path / "p" / "trials.csv")
+    assert front and all((tmp_path / "p" / r["config"]).is_file() for r in front)
+    pts = [(float(r["tune_pd"]), float(r["tune_fa"])) for r in every]
+    for r in front:  # nothing dominates a front point
+        pd, fa = float(r["pd"]), float(r["fa"])
+        assert not any(a >= pd and b <= fa and (a > pd or b < fa) for a, b in pts)
+    assert (tmp_path / "p" / "pareto.png").is_file()
+    assert not (tmp_path / "p" / "best.toml").exists()
+
+
+def test_failing_trial_is_recorded_and_the_study_goes_on(tmp_path, monkeypatch):
+    from wfviz.trackers.gewc import tracker as gewc
+
+    step = gewc.GEWCTracker.step
+
+    def flaky(self, frame):  # noqa: ANN001, ANN202
+        if self.config.tracking.p_detect < 0.75 and frame.index == 3:
+            raise RuntimeError("boom at frame 3")
+        return step(self, frame)
+
+    monkeypatch.setattr(gewc.GEWCTracker, "step", flaky)
+    monkeypatch.chdir(tmp_path)
+    (tmp_path / "space.toml").write_text(SPACE)
+    result = CliRunner().invoke(app, ["tune", *TUNE, "--out", "f", "--space", "space.toml", "--stop", "8",
+                                      "--workers", "1", "--trials", "8", "--seed", "1"])
+    assert result.exit_code == 0, result.output
+    got = rows(tmp_path / "f" / "trials.csv")
+    assert len(got) == 8
+    failed = [r for r in got if r["state"] == "fail"]
+    assert failed and all("boom at frame 3" in r["error"] for r in failed)
+    assert all(float(r["tracking.p_detect"]) < 0.75 for r in failed)
+    assert any(r["state"] == "complete" for r in got)
+    assert "Failed trials" in (tmp_path / "f" / "report.md").read_text()
+
+
+def test_ctrl_c_keeps_finished_trials_and_resumes(tmp_path):
+    (tmp_path / "space.toml").write_text(SPACE)
+    args = ["tune", *TUNE, "--out", "i", "--space", "space.toml", "--stop", "16", "--workers", "2",
+            "--trials", "200"]
+    proc = subprocess.Popen([sys.executable, "-m", "wfviz", *args], cwd=tmp_path, stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True)
+    csv_path = tmp_path / "i" / "trials.csv"
+    deadline = time.time() + 240
+    while time.time() < deadline and (not csv_path.is_file() or len(rows(csv_path)) < 2):
+        time.sleep(0.2)
+    proc.send_signal(signal.SIGINT)
+    out, err = proc.communicate(timeout=120)
+    assert proc.returncode == 130, err
+    got = rows(csv_path)
+    done = [r for r in got if r["state"] == "complete"]
+    assert len(done) >= 2 and "interrupted" in out
+    assert all(r["error"] in ("", "interrupted") for r in got)
+    assert not [p for p in os.popen(f"pgrep -f wfviz-tune-worker -P {proc.pid}").read().split() if p]
+    # the same command goes on from there
+    proc2 = wfviz(*args[:-1], str(len(done) + 1), cwd=tmp_path)
+    assert proc2.returncode == 0, proc2.stderr
+    after = rows(csv_path)
+    assert len([r for r in after if r["state"] == "complete"]) == len(done) + 1
+
+
+def test_print_space_round_trips_for_every_tracker(tmp_path):
+    for name in TRACKERS:
+        result = CliRunner().invoke(app, ["tune", "--tracker", name, "--print-space"])
+        assert result.exit_code == 0, result.output
+        path = tmp_path / f"{name}.toml"
+        path.write_text(result.stdout)
+        assert load_space(path, config_class(name)) == parse_space(default_space(name), config_class(name))
+
+
+@pytest.mark.parametrize("text, message", [
+    ("[detection]\nk_sigm = { low = 3.0, high = 5.0 }\n", "did you mean 'k_sigma'"),
+    ("[detecton]\nk_sigma = { low = 3.0, high = 5.0 }\n", "did you mean 'detection'"),
+    ("[detection]\nk_sigma = { low = 5.0, high = 3.0 }\n", "must be below high"),
+    ("[tracking]\np_detect = { low = 0.0, high = 0.9, log = true }\n", "out of range"),
+    ("[detection]\nk_sigma = { low = 3.0 }\n", "needs both low and high"),
+    ("[detection]\nk_sigma = { low = 3.0, hihg = 5.0 }\n", "unknown range key 'hihg'"),
+    ("[detection]\nmode = { low = 1, high = 2 }\n", "not a number"),
+    ("[detection]\nmode = { choices = [\"cfar\", \"nope\"] }\n", "not one of"),
+    ("[kalman]\ngate_min = { low = 3.0, high = 40.0 }\n", "must not exceed kalman.gate_max"),
+    ("[detection]\nk_sigma = 4.0\n", "no parameter to search"),
+])
+def test_bad_space_is_one_line_exit_2(tmp_path, text, message):
+    (tmp_path / "s.toml").write_text(text)
+    proc = wfviz("tune", "synth:uniform-50hz:0", "--out", "x", "--space", "s.toml", cwd=tmp_path)
+    assert proc.returncode == 2
+    lines = proc.stderr.strip().splitlines()
+    assert len(lines) == 1 and "s.toml" in lines[0] and message in lines[0], proc.stderr
+    assert not (tmp_path / "x").exists()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["synth:uniform-50hz:0", "--objective", "hota"], "unknown 'hota'"),
+    (["synth:uniform-50hz:0"], "--out DIR is required"),
+    (["--out", "x"], "no clip to tune on"),
+    (["missing-clip.avi", "--out", "x"], "no such file"),
+    (["synth:uniform-50hz:0", "--out", "x", "--tracker", "nope"], "unknown tracker"),
+    (["synth:uniform-50hz:0", "synth:uniform-50hz:0", "--out", "x"], "given twice"),
+])
+def test_bad_arguments_are_one_line_exit_2(tmp_path, args, message):
+    proc = wfviz("tune", *args, cwd=tmp_path)
+    assert proc.returncode == 2
+    assert len(proc.stderr.strip().splitlines()) == 1 and message in proc.stderr, proc.stderr
+
+
+def test_clip_without_truth_is_named(tmp_path):
+    import numpy as np
+
+    np.save(tmp_path / "c.npy", np.zeros((3, 64, 64), dtype=np.uint16))
+    proc = wfviz("tune", "c.npy", "--out", "x", cwd=tmp_path)
+    assert proc.returncode == 2 and "c.npy: no truth found" in proc.stderr, proc.stderr
+
+
+def test_record_best_and_folds(tmp_path):
+    (tmp_path / "space.toml").write_text(SPACE)
+    proc = wfviz("tune", *TUNE, "--out", "r", "--space", "space.toml", "--stop", "12", "--workers", "1",
+                 "--trials", "4", "--record-best", "1", "--folds", "2", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    recs = sorted(p.name for p in (tmp_path / "r" / "recordings").glob("*.rrd"))
+    best = max(rows(tmp_path / "r" / "trials.csv"), key=lambda r: (float(r["tune_mota"]), -int(r["trial"])))
+    want = {f"trial-{t}-{c}.rrd" for t in {best["trial"], "0"} for c in ("fov70-maneuver-0", "uniform-50hz-0")}
+    assert set(recs) == want
+    truth_seen = any(chunk.entity_path == "/camera/truth" for chunk in
+                     RrdReader(tmp_path / "r" / "recordings" / recs[0]).stream())
+    assert truth_seen
+    report = (tmp_path / "r" / "report.md").read_text()
+    assert "Leave-clips-out cross-validation (2 folds)" in report
+
+
+@pytest.mark.slow
+def test_ray_runs_the_same_trials_as_local_workers(tmp_path):
+    pytest.importorskip("ray")
+    (tmp_path / "space.toml").write_text(SPACE)
+    got = {}
+    for name, extra in (("local", []), ("ray", ["--ray", "local"])):
+        proc = wfviz("tune", *TUNE, "--out", name, "--space", "space.toml", "--stop", "12", "--workers", "2",
+                     "--trials", "4", *extra, cwd=tmp_path)
+        assert proc.returncode == 0, proc.stderr
+        got[name] = [{k: v for k, v in r.items() if k != "seconds"} for r in rows(tmp_path / name / "trials.csv")]
+    assert got["local"] == got["ray"]

@@ -1,0 +1,106 @@
+"""``wfviz tune``'s front-end cache: a clip's frames through the stages before detection
+(:meth:`wfviz.stages.front_end.FrontEnd.prepare`), computed once per worker process and
+replayed in every trial whose configuration prepares them the same
+(:meth:`~wfviz.stages.front_end.FrontEnd.prepare_key`). A replayed trial runs the very same
+detection and tracking code on the very same arrays, so its tracks are those of a full run
+(the tests check it); only the decoding and the stages before detection are skipped.
+
+Only trackers whose front end does not depend on the tracks take it: GEWC in "cfar" mode
+(fusion searches windows that follow its tracks, and the noise statistics follow the windows)."""
+
+from __future__ import annotations
+
+from collections import OrderedDict
+from collections.abc import Iterator
+from types import MappingProxyType
+from typing import Any
+
+from wfviz.io.frames import Frame
+from wfviz.stages.front_end import FrontEnd, PreparedFrame
+from wfviz.synth.clip import GeneratedClip
+
+CACHE_MB = 3072  # per worker process; the least recently used clips are dropped beyond it
+
+_CACHE: OrderedDict[tuple, tuple[list[Frame], list[PreparedFrame], int]] = OrderedDict()
+STATS = {"hits": 0, "misses": 0}
+
+
+def _noop(_stage: str) -> None:
+    pass
+
+
+class ReplayFrontEnd(FrontEnd):
+    """A :class:`FrontEnd` whose :meth:`prepare` hands out prepared frames in order (the raw
+    frame it is given is not looked at); :meth:`finish` (detection) runs as usual."""
+
+    def __init__(self, config: Any, frames: list[PreparedFrame]) -> None:
+        super().__init__(config)
+        self._frames, self._next = frames, 0
+
+    @property
+    def circle(self) -> Any:
+        return self._frames[self._next - 1].circle if self._next else None
+
+    def prepare(self, raw: Any, lap: Any, whole: bool = True, update_horizon: bool = True) -> PreparedFrame:
+        p = self._frames[self._next]
+        self._next += 1
+        return p
+
+
+class ReplayClip(GeneratedClip):
+    """The frames of a cached clip (a :class:`wfviz.io.frames.Clip` that reads nothing)."""
+
+    skipped = MappingProxyType({})
+
+    def __init__(self, name: str, frames: list[Frame], fps: float) -> None:
+        self.name, self._frames, self.fps = name, frames, fps
+        self.n_frames = len(frames)
+        self.shape = frames[0].image.shape if frames else (0, 0)
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        for f in self._frames:
+            if f.index >= start and (stop is None or f.index < stop):
+                yield f
+
+
+def cacheable(tracker: str, config: Any) -> bool:
+    """Whether trials of ``tracker`` with ``config`` can replay a prepared clip."""
+    return tracker == "gewc" and config.detection.mode == "cfar"
+
+
+def _nbytes(frames: list[PreparedFrame]) -> int:
+    seen: set[int] = set()
+    total = 0
+    for p in frames:
+        for v in (p.image, p.raw, p.mask, p.valid, p.region, p.suppressed, p.change,
+                  None if p.noise is None else p.noise.level, None if p.noise is None else p.noise.sigma):
+            if v is not None and id(v) not in seen:
+                seen.add(id(v))
+                total += v.nbytes
+    return total
+
+
+def replay(spec: str, stop: int | None, config: Any) -> tuple[ReplayClip, ReplayFrontEnd]:
+    """The clip ``spec`` (frames before ``stop``) and a front end that replays it for
+    ``config``, prepared now or taken from the cache."""
+    from wfviz.io.clip import open_clip
+
+    key = (spec, stop, FrontEnd.prepare_key(config))
+    hit = _CACHE.get(key)
+    clip = open_clip(spec)
+    if hit is None:
+        STATS["misses"] += 1
+        front = FrontEnd(config)
+        frames, prepared = [], []
+        for f in clip.frames(0, stop):
+            frames.append(f)
+            prepared.append(front.prepare(f.image, _noop))
+        hit = (frames, prepared, _nbytes(prepared))
+        _CACHE[key] = hit
+        while sum(v[2] for v in _CACHE.values()) > CACHE_MB * 2**20 and len(_CACHE) > 1:
+            _CACHE.popitem(last=False)
+    else:
+        STATS["hits"] += 1
+        _CACHE.move_to_end(key)
+    frames, prepared, _ = hit
+    return ReplayClip(clip.name, frames, clip.fps), ReplayFrontEnd(config, prepared)

@@ -1,0 +1,89 @@
+"""The clips of a tuning study: ``CLIP[=TRUTH]`` arguments, their truth, unique labels."""
+
+from __future__ import annotations
+
+from dataclasses import dataclass
+from pathlib import Path
+
+from wfviz.io.clip import SYNTH_PREFIX, open_clip
+
+
+@dataclass(frozen=True)
+class StudyClip:
+    """A clip of a study: ``spec`` as :func:`wfviz.io.clip.open_clip` takes it, its truth CSV,
+    a ``label`` unique in the study and its ``role`` ("tune" or "validate")."""
+
+    label: str
+    spec: str
+    truth: Path
+    role: str
+
+
+def find_truth(spec: str, truth: str | None) -> Path | None:
+    """The truth CSV of clip ``spec``: ``truth`` when given, else ``truth.csv`` in the clip
+    folder, or beside a video file, a stack or a frames folder (``X/frames`` → ``X/truth.csv``).
+    None: a ``synth:`` clip (it brings its own)."""
+    if truth:
+        return Path(truth)
+    if spec.startswith(SYNTH_PREFIX):
+        return None
+    p = Path(spec)
+    for candidate in ((p / "truth.csv", p.parent / "truth.csv") if p.is_dir() else (p.parent / "truth.csv",)):
+        if candidate.is_file():
+            return candidate
+    raise ValueError(f"{spec}: no truth found (looked for truth.csv in and beside it); give CLIP=TRUTH")
+
+
+def _label(spec: str) -> str:
+    if spec.startswith(SYNTH_PREFIX):
+        return spec[len(SYNTH_PREFIX):].replace(":", "-")
+    p = Path(spec)
+    if p.is_dir():
+        return (p.parent.name if p.name == "frames" and p.parent.name else p.name) or "clip"
+    return p.stem or "clip"
+
+
+def split_spec(arg: str) -> tuple[str, str | None]:
+    """``CLIP[=TRUTH]`` as (clip, truth or None); a ``synth:`` clip takes no truth."""
+    if arg.startswith(SYNTH_PREFIX) or "=" not in arg:
+        return arg, None
+    clip, truth = arg.rsplit("=", 1)
+    return clip, truth or None
+
+
+def study_clips(tune: list[str], validate: list[str], truth_dir: Path, stop: int | None) -> list[StudyClip]:
+    """Open every clip once (errors name the clip) and resolve its truth; a ``synth:`` clip's
+    truth is written to ``truth_dir/<label>.csv`` (frames before ``stop``), so that ``wfviz
+    eval`` can score a reproduction against the same file."""
+    out: list[StudyClip] = []
+    seen: dict[str, int] = {}
+    specs = [(a, "tune") for a in tune] + [(a, "validate") for a in validate]
+    keys = [split_spec(a)[0] for a, _ in specs]
+    for key in keys:
+        if keys.count(key) > 1:
+            raise ValueError(f"{key}: given twice (a clip is either tuned on or validated on, once)")
+    for arg, role in specs:
+        spec, truth_arg = split_spec(arg)
+        clip = open_clip(spec)
+        base = _label(spec)
+        seen[base] = seen.get(base, 0) + 1
+        label = base if seen[base] == 1 else f"{base}-{seen[base]}"
+        truth = find_truth(spec, truth_arg)
+        if truth is None:
+            truth = truth_dir / f"{label}.csv"
+            truth_dir.mkdir(parents=True, exist_ok=True)
+            _write_truth(clip, truth, stop)
+        elif not truth.is_file():
+            raise ValueError(f"{truth}: no such truth file (for clip {spec})")
+        out.append(StudyClip(label, spec, truth, role))
+    return out
+
+
+def _write_truth(clip, path: Path, stop: int | None) -> None:  # noqa: ANN001
+    from wfviz.io.outputs import write_atomically
+
+    rows = ["frame,target_id,x,y,visible"]
+    for r in clip.truth():
+        if stop is None or r.frame < stop:
+            rows.append(f"{r.frame},{r.target_id},{r.x!r},{r.y!r},{r.visible}")
+    write_atomically(path, "\n".join(rows) + "\n")

@@ -1,0 +1,273 @@
+"""A tuning study: Optuna searches a tracker's parameters against ground truth (T. Akiba et
+al., "Optuna: a next-generation hyperparameter optimization framework", KDD 2019): TPE for one
+objective, NSGA-II for the Pareto front of Pd against false tracks.
+
+The search is batch-synchronous: ``workers`` trials are asked for, run, and told back in trial
+order before the next batch is asked for, and each ask uses a sampler seeded from ``seed`` and
+the trial's number. The trials depend only on the seed, ``workers`` and what finished before,
+so a resumed study (the journal ``study.journal`` in the output folder), a local pool and a
+Ray cluster all give the same trials. Validation clips are run and scored in every trial but
+never reach the sampler. Trial 0 is the base configuration (the defaults), so every study
+reports where it started.
+"""
+
+from __future__ import annotations
+
+import json
+import math
+import signal
+import threading
+from collections.abc import Callable
+from dataclasses import dataclass, field
+from pathlib import Path
+from typing import Any
+
+from wfviz.config import ConfigError
+from wfviz.tune.clips import StudyClip
+from wfviz.tune.space import Param, SearchSpace, config_dict, make_config
+from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores
+from wfviz.tune.workers import make_pool
+
+#: objective name -> (metrics, directions)
+OBJECTIVES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
+    "mota": (("mota",), ("maximize",)),
+    "idf1": (("idf1",), ("maximize",)),
+    "pareto": (("pd", "fa"), ("maximize", "minimize")),
+}
+STUDY_NAME = "wfviz-tune"
+TPE_STARTUP = 8      # random trials before TPE models the history (Optuna's default is 10)
+NSGA_POPULATION = 8  # NSGA-II generation size (small: a study of a few dozen trials still evolves)
+JOURNAL = "study.journal"
+
+
+@dataclass(frozen=True)
+class StudySettings:
+    """Everything that defines a study (checked again when it resumes: :meth:`fingerprint`) and
+    how to run it (``workers`` and Ray may change between runs; the trials then differ from
+    those of one uninterrupted run, since a batch's size decides what its trials know)."""
+
+    tracker: str
+    clips: tuple[StudyClip, ...]
+    space: SearchSpace
+    base: Any  # the tracker's configuration the trials start from
+    objective: str = "mota"
+    trials: int = 20
+    seed: int = 0
+    workers: int = 1
+    stop: int | None = None
+    gate: float = 3.0
+    use_ray: bool = False
+    ray_address: str | None = None
+    cache: bool = True  # replay prepared front-end frames (wfviz.tune.cache; the same results)
+
+    def fingerprint(self) -> dict[str, Any]:
+        """What must not change between runs of one study."""
+        return {"tracker": self.tracker, "objective": self.objective, "seed": self.seed,
+                "stop": self.stop, "gate": self.gate,
+                "clips": [[c.label, c.spec, str(c.truth), c.role] for c in self.clips],
+                "space": [p.__dict__ | {"choices": list(p.choices)} for p in self.space.params],
+                "fixed": self.space.fixed, "base": config_dict(self.base)}
+
+
+@dataclass
+class StudyState:
+    """Where a study stands: its finished trials (Optuna ``FrozenTrial``), whether it was
+    interrupted, and the trials it ran this time."""
+
+    trials: list[Any]
+    interrupted: bool = False
+    ran: int = 0
+    directions: tuple[str, ...] = ()
+    notes: list[str] = field(default_factory=list)
+
+
+def _optuna():  # noqa: ANN202
+    import optuna
+
+    optuna.logging.set_verbosity(optuna.logging.WARNING)
+    return optuna
+
+
+def open_study(out: Path, settings: StudySettings):  # noqa: ANN201
+    """The study in ``out`` (created, or loaded when its journal exists and its settings match)."""
+    optuna = _optuna()
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    journal = out / JOURNAL
+    exists = journal.is_file()
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    _, directions = OBJECTIVES[settings.objective]
+    if exists:
+        try:
+            study = optuna.load_study(study_name=STUDY_NAME, storage=storage)
+        except KeyError:
+            raise ValueError(f"{journal}: holds no wfviz study; use another --out") from None
+        stored = study.user_attrs.get("settings")
+        now = json.loads(json.dumps(settings.fingerprint()))
+        if stored != now:
+            diff = sorted(k for k in now if stored is None or stored.get(k) != now.get(k))
+            raise ValueError(f"{out}: holds a study with other settings ({', '.join(diff)} differ); "
+                             "resume it with the same command, or use another --out")
+        return study
+    study = optuna.create_study(study_name=STUDY_NAME, storage=storage, directions=list(directions))
+    study.set_user_attr("settings", json.loads(json.dumps(settings.fingerprint())))
+    start = {p.name: _base_value(settings.base, p) for p in settings.space.params}
+    if all(_inside(p, v) for p, v in zip(settings.space.params, start.values())):
+        study.enqueue_trial(start, user_attrs={"base": True})
+    return study
+
+
+def _base_value(base: Any, p: Param) -> Any:
+    section, key = p.name.split(".", 1)
+    return getattr(getattr(base, section), key)
+
+
+def _inside(p: Param, v: Any) -> bool:
+    if p.kind == "choice":
+        return v in p.choices
+    return v is not None and p.low <= v <= p.high
+
+
+def _sampler(settings: StudySettings, number: int):  # noqa: ANN202
+    """The sampler of trial ``number``: seeded from the study's seed and the number, its other
+    settings fixed, so that what it proposes depends on the finished trials only."""
+    optuna = _optuna()
+    seed = (settings.seed * 1_000_003 + number) % 2**32
+    if settings.objective == "pareto":
+        return optuna.samplers.NSGAIISampler(seed=seed, population_size=NSGA_POPULATION)
+    return optuna.samplers.TPESampler(seed=seed, n_startup_trials=TPE_STARTUP)
+
+
+def _suggest(trial: Any, p: Param) -> Any:
+    if p.kind == "choice":
+        return trial.suggest_categorical(p.name, list(p.choices))
+    if p.kind == "int":
+        return trial.suggest_int(p.name, int(p.low), int(p.high), step=p.step or 1, log=p.log)
+    return trial.suggest_float(p.name, p.low, p.high, log=p.log)
+
+
+UNFINISHED = ("interrupted", "not finished (the study was stopped)")  # errors of trials cut short
+
+
+def finished(study: Any) -> list[Any]:
+    """The study's trials that ended (completed, or failed on their own), in trial order;
+    trials cut short by Ctrl-C or a stopped run are left out (the study asks for others)."""
+    from optuna.trial import TrialState
+
+    return [t for t in study.get_trials(deepcopy=False)
+            if t.state == TrialState.COMPLETE
+            or (t.state == TrialState.FAIL and t.user_attrs.get("error") not in UNFINISHED)]
+
+
+def _close_stale(study: Any) -> int:
+    """Trials a stopped run left running: recorded as failed (they are asked for again)."""
+    from optuna.trial import TrialState
+
+    stale = [t for t in study.get_trials(deepcopy=False) if t.state == TrialState.RUNNING]
+    for t in stale:  # (Optuna has no public call for another process's running trial)
+        study._storage.set_trial_user_attr(t._trial_id, "error", UNFINISHED[1])
+        study.tell(t.number, state=TrialState.FAIL)
+    return len(stale)
+
+
+class _Interrupt:
+    """SIGINT/SIGTERM set ``hit`` while active (main thread only)."""
+
+    def __init__(self) -> None:
+        self.hit = False
+        self._old: dict[int, Any] = {}
+
+    def __enter__(self) -> _Interrupt:
+        if threading.current_thread() is threading.main_thread():
+            for sig in (signal.SIGINT, signal.SIGTERM):
+                self._old[sig] = signal.signal(sig, self._handle)
+        return self
+
+    def _handle(self, _signum: int, _frame: object) -> None:
+        self.hit = True
+
+    def __exit__(self, *exc: object) -> None:
+        for sig, old in self._old.items():
+            signal.signal(sig, old)
+
+
+def run_study(settings: StudySettings, out: Path,
+              on_batch: Callable[[StudyState], None] | None = None) -> StudyState:
+    """Run trials until the study in ``out`` has ``settings.trials`` finished ones (a failed
+    trial counts), calling ``on_batch`` after each batch (outputs, progress). Ctrl-C ends the
+    running trials (recorded as failed, "interrupted") and keeps every finished one."""
+    from optuna.trial import TrialState
+
+    out.mkdir(parents=True, exist_ok=True)
+    study = open_study(out, settings)
+    metrics, directions = OBJECTIVES[settings.objective]
+    state = StudyState(finished(study), directions=directions)
+    stale = _close_stale(study)
+    if stale:
+        state.notes.append(f"{stale} trial(s) left running by a stopped run recorded as failed")
+    tune_labels = [c.label for c in settings.clips if c.role == "tune"]
+    valid_labels = [c.label for c in settings.clips if c.role == "validate"]
+    from wfviz.trackers import config_class
+
+    cls = config_class(settings.tracker)
+    pool = make_pool(settings.workers, settings.ray_address, settings.use_ray)
+    try:
+        with _Interrupt() as stop:
+            while len(finished(study)) < settings.trials and not stop.hit:
+                batch = min(settings.workers, settings.trials - len(finished(study)))
+                asked, tasks = [], []
+                for _ in range(batch):
+                    number = len(study.get_trials(deepcopy=False))
+                    study.sampler = _sampler(settings, number)
+                    trial = study.ask()
+                    params = {p.name: _suggest(trial, p) for p in settings.space.params}
+                    try:
+                        config = make_config(cls, params, settings.space.fixed, settings.base)
+                    except ConfigError as exc:  # a sampled combination the tracker refuses
+                        trial.set_user_attr("error", f"invalid configuration: {exc}")
+                        study.tell(trial, state=TrialState.FAIL)
+                        state.ran += 1
+                        continue
+                    asked.append(trial)
+                    tasks.append(TrialTask(trial.number, settings.tracker, config_dict(config),
+                                           settings.clips, settings.stop, settings.gate,
+                                           str(out / "work"), settings.cache))
+                outcomes = pool.run(tasks, lambda: stop.hit) if tasks else []
+                for trial, outcome in zip(asked, outcomes):
+                    _tell(study, trial, outcome, metrics, tune_labels, valid_labels)
+                    state.ran += 1
+                state.trials = finished(study)
+                if any(o is None or o.error == "interrupted" for o in outcomes):
+                    stop.hit = True
+                if on_batch is not None:
+                    on_batch(state)
+            state.interrupted = stop.hit and len(finished(study)) < settings.trials
+    finally:
+        pool.close()
+    state.trials = finished(study)
+    return state
+
+
+def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[str, ...],
+          tune_labels: list[str], valid_labels: list[str]) -> None:
+    from optuna.trial import TrialState
+
+    if outcome is None or outcome.scores is None:
+        trial.set_user_attr("error", outcome.error if outcome is not None else "interrupted")
+        if outcome is not None:
+            trial.set_user_attr("seconds", outcome.seconds)
+        study.tell(trial, state=TrialState.FAIL)
+        return
+    tuned = mean_scores(outcome.scores, tune_labels)
+    trial.set_user_attr("scores", outcome.scores)
+    trial.set_user_attr("tune", tuned)
+    if valid_labels:
+        trial.set_user_attr("validate", mean_scores(outcome.scores, valid_labels))
+    trial.set_user_attr("seconds", outcome.seconds)
+    values = [tuned[m] for m in metrics]
+    if not all(math.isfinite(v) for v in values):
+        trial.set_user_attr("error", "objective is not a number (no truth point in the scored frames?)")
+        study.tell(trial, state=TrialState.FAIL)
+        return
+    study.tell(trial, values)
