@@ -301,3 +301,18 @@ def test_ray_runs_the_same_trials_as_local_workers(tmp_path):
         assert proc.returncode == 0, proc.stderr
         got[name] = [{k: v for k, v in r.items() if k != "seconds"} for r in rows(tmp_path / name / "trials.csv")]
     assert got["local"] == got["ray"]
+
+
+def test_cache_keeps_what_fits_and_replays_it_exactly(monkeypatch):
+    from wfviz.trackers.gewc.config import GEWCConfig
+    from wfviz.tune import cache
+
+    monkeypatch.setattr(cache, "_CACHE", {})
+    monkeypatch.setattr(cache, "CACHE_MB", 40)  # room for one 480x320 clip of 16 frames, not two
+    config = GEWCConfig()
+    first, _ = cache.replay("synth:uniform-50hz:0", 16, config)
+    cache.replay("synth:uniform-50hz:1", 16, config)
+    assert [k[0] for k in cache._CACHE] == ["synth:uniform-50hz:0"]
+    again, front = cache.replay("synth:uniform-50hz:0", 16, config)
+    assert [f.index for f in again.frames()] == list(range(16))
+    assert again.frames().__next__().image is next(first.frames()).image  # the cached frames themselves

@@ -10,7 +10,6 @@ Only trackers whose front end does not depend on the tracks take it: GEWC in "cf
 
 from __future__ import annotations
 
-from collections import OrderedDict
 from collections.abc import Iterator
 from types import MappingProxyType
 from typing import Any
@@ -19,9 +18,9 @@ from wfviz.io.frames import Frame
 from wfviz.stages.front_end import FrontEnd, PreparedFrame
 from wfviz.synth.clip import GeneratedClip
 
-CACHE_MB = 3072  # per worker process; the least recently used clips are dropped beyond it
+CACHE_MB = 3072  # per worker process; clips that no longer fit are prepared afresh each trial
 
-_CACHE: OrderedDict[tuple, tuple[list[Frame], list[PreparedFrame], int]] = OrderedDict()
+_CACHE: dict[tuple, tuple[list[Frame], list[PreparedFrame], int]] = {}
 STATS = {"hits": 0, "misses": 0}
 
 
@@ -96,11 +95,11 @@ def replay(spec: str, stop: int | None, config: Any) -> tuple[ReplayClip, Replay
             frames.append(f)
             prepared.append(front.prepare(f.image, _noop))
         hit = (frames, prepared, _nbytes(prepared))
-        _CACHE[key] = hit
-        while sum(v[2] for v in _CACHE.values()) > CACHE_MB * 2**20 and len(_CACHE) > 1:
-            _CACHE.popitem(last=False)
+        # a study visits its clips in the same order every trial: dropping the oldest to make
+        # room would drop each clip just before it is needed again, so what is cached stays
+        if sum(v[2] for v in _CACHE.values()) + hit[2] <= CACHE_MB * 2**20:
+            _CACHE[key] = hit
     else:
         STATS["hits"] += 1
-        _CACHE.move_to_end(key)
     frames, prepared, _ = hit
     return ReplayClip(clip.name, frames, clip.fps), ReplayFrontEnd(config, prepared)
