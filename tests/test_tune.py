@@ -316,3 +316,13 @@ def test_cache_keeps_what_fits_and_replays_it_exactly(monkeypatch):
     again, front = cache.replay("synth:uniform-50hz:0", 16, config)
     assert [f.index for f in again.frames()] == list(range(16))
     assert again.frames().__next__().image is next(first.frames()).image  # the cached frames themselves
+
+
+def test_empty_truth_is_refused_before_any_trial(tmp_path):
+    import numpy as np
+
+    np.save(tmp_path / "c.npy", np.zeros((3, 64, 64), dtype=np.uint16))
+    (tmp_path / "t.csv").write_text("frame,target_id,x,y\n")
+    proc = wfviz("tune", "c.npy=t.csv", "--out", "x", cwd=tmp_path)
+    assert proc.returncode == 2 and "t.csv: no truth rows" in proc.stderr, proc.stderr
+    assert not (tmp_path / "x").exists()

@@ -75,6 +75,12 @@ def study_clips(tune: list[str], validate: list[str], truth_dir: Path, stop: int
             _write_truth(clip, truth, stop)
         elif not truth.is_file():
             raise ValueError(f"{truth}: no such truth file (for clip {spec})")
+        else:
+            from wfviz.evaluate import TruthError, read_truth
+
+            shown, hidden = read_truth(truth)  # a malformed file is named before any trial runs
+            if not shown and not hidden:
+                raise TruthError(f"{truth}: no truth rows (only a header, or empty)")
         out.append(StudyClip(label, spec, truth, role))
     return out
 
