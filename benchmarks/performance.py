@@ -35,7 +35,6 @@ import sys  # noqa: E402
 import tempfile  # noqa: E402
 import time  # noqa: E402
 import warnings  # noqa: E402
-from collections.abc import Iterator  # noqa: E402
 from pathlib import Path  # noqa: E402
 
 import cv2  # noqa: E402
@@ -44,7 +43,7 @@ import numpy as np  # noqa: E402
 from wfviz.config import config_to_toml  # noqa: E402
 from wfviz.io.clip import open_clip  # noqa: E402
 from wfviz.io.frames import Frame  # noqa: E402
-from wfviz.synth.clip import GeneratedClip  # noqa: E402
+from wfviz.synth.clip import MemoryClip  # noqa: E402
 from wfviz.run import run  # noqa: E402
 from wfviz.synth.demo import demo_clip  # noqa: E402
 from wfviz.synth.scenarios import make_scenario  # noqa: E402
@@ -64,18 +63,6 @@ TRACKER_CASES = {
     "starfield": ("starfield (1024x1024)", 50.0),
     "tbd": ("lowsnr-tbd (64x64)", 20.0),
 }
-
-
-class MemoryClip(GeneratedClip):
-    """Frames held in memory (benchmark only): a ``Clip`` without decoding."""
-
-    def __init__(self, name: str, frames: list[Frame], fps: float) -> None:
-        self.name, self._frames, self.fps = name, frames, fps
-        self.n_frames = len(frames)
-        self.shape = frames[0].image.shape
-
-    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        yield from self._frames[start:stop]
 
 
 def case_frames(tracker: str) -> MemoryClip:

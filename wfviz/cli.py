@@ -463,6 +463,7 @@ def tune(
     """Search a tracker's parameters against ground truth (Optuna), validate on held-back clips, link every trial to its scores and recordings."""
     from wfviz.config import load_config
     from wfviz.trackers import default_space
+    from wfviz.tune.outputs import ranked
     from wfviz.tune.space import load_space, parse_space, space_to_toml
     from wfviz.tune.study import OBJECTIVES
 
@@ -509,13 +510,9 @@ def tune(
         task = progress.add_task("trials", total=trials, best="")
 
         def on_batch(state) -> None:  # noqa: ANN001
-            done = [t for t in state.trials if t.values is not None]
-            best = ""
-            if done and objective != "pareto":
-                b = max(done, key=lambda t: t.values[0])
-                best = f"best {metric} {b.values[0]:.3f} (trial {b.number})"
-            elif done:
-                best = f"{len(done)} scored"
+            top = ranked(state.trials, objective)
+            best = ("" if not top else f"{len(top)} scored" if objective == "pareto"
+                    else f"best {metric} {top[0].values[0]:.3f} (trial {top[0].number})")
             progress.update(task, completed=len(state.trials), best=best)
 
         def on_stage(name: str) -> None:

@@ -160,7 +160,7 @@ class FrontEnd:
 
         The same as :meth:`finish` of :meth:`prepare`: what comes before the detection does not
         depend on the tracks when the frame is searched whole in "cfar" mode
-        (:attr:`independent_of_tracks`), so it can be computed once and replayed."""
+        (:meth:`independent_of_tracks`), so it can be computed once and replayed."""
         return self.finish(self.prepare(raw, lap, windows is None, update_horizon), lap, windows, k_map, gates)
 
     @staticmethod
@@ -171,12 +171,12 @@ class FrontEnd:
         return (c.defects, c.circle, c.horizon, c.suppression, c.noise, c.detection.mode,
                 c.tracking.compensate_motion)
 
-    @property
-    def independent_of_tracks(self) -> bool:
+    @staticmethod
+    def independent_of_tracks(config: FrontEndConfig) -> bool:
         """Whether :meth:`prepare` of frames searched whole gives the same whatever the tracks
-        (in "cfar" mode; with a global or box threshold the defect stage takes the detection's
-        threshold, which the tracks' gates change)."""
-        return self.noise is not None
+        with ``config`` (in "cfar" mode; with a global or box threshold the defect stage takes
+        the detection's threshold, which the tracks' gates change)."""
+        return config.detection.mode == "cfar"
 
     def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
                 update_horizon: bool = True) -> PreparedFrame:
@@ -248,7 +248,7 @@ class FrontEnd:
         dets = score_detections(dets, p.image, full, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0)
         bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
-        if noise is None:  # the defect stage takes the detection's threshold
+        if not self.independent_of_tracks(c):  # the defect stage takes the detection's threshold
             bad_changed = self.bad.update(p.raw, p.suppressed, dets.threshold)
             bad_pixels = self.bad.flagged
         lap("detect")

@@ -1,14 +1,16 @@
 """What every generated clip shares: its truth rows (one type for the demo and the scenarios)
-and the :class:`wfviz.io.frames.Clip` properties of a clip that reads no file."""
+and the :class:`wfviz.io.frames.Clip` properties of a clip that reads no file (and
+:class:`MemoryClip`, frames already in memory)."""
 
 from __future__ import annotations
 
-from collections.abc import Iterable, Mapping, Sequence
+from collections.abc import Iterable, Iterator, Mapping, Sequence
 from pathlib import Path
 from types import MappingProxyType
 from typing import NamedTuple
 
 from wfviz.evaluate import Points
+from wfviz.io.frames import Frame
 
 
 class TruthRow(NamedTuple):
@@ -48,3 +50,19 @@ class GeneratedClip:
     def truth_points(self) -> tuple[Points, Points]:
         """The whole clip's truth as (visible, hidden) points, ready to score against."""
         return truth_points(self.truth())
+
+
+class MemoryClip(GeneratedClip):
+    """Frames already in memory (a :class:`wfviz.io.frames.Clip` that decodes nothing: the
+    benchmarks' rendered frames, ``wfviz tune``'s cached ones); frames by their index. No
+    truth of its own."""
+
+    def __init__(self, name: str, frames: list[Frame], fps: float) -> None:
+        self.name, self._frames, self.fps = name, frames, fps
+        self.n_frames = len(frames)
+        self.shape = frames[0].image.shape if frames else (0, 0)
+
+    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
+        for f in self._frames:
+            if f.index >= start and (stop is None or f.index < stop):
+                yield f

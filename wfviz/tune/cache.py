@@ -10,13 +10,11 @@ Only trackers whose front end does not depend on the tracks take it: GEWC in "cf
 
 from __future__ import annotations
 
-from collections.abc import Iterator
-from types import MappingProxyType
 from typing import Any
 
 from wfviz.io.frames import Frame
 from wfviz.stages.front_end import FrontEnd, PreparedFrame
-from wfviz.synth.clip import GeneratedClip
+from wfviz.synth.clip import MemoryClip
 
 CACHE_MB = 3072  # per worker process; clips that no longer fit are prepared afresh each trial
 
@@ -46,25 +44,14 @@ class ReplayFrontEnd(FrontEnd):
         return p
 
 
-class ReplayClip(GeneratedClip):
-    """The frames of a cached clip (a :class:`wfviz.io.frames.Clip` that reads nothing)."""
-
-    skipped = MappingProxyType({})
-
-    def __init__(self, name: str, frames: list[Frame], fps: float) -> None:
-        self.name, self._frames, self.fps = name, frames, fps
-        self.n_frames = len(frames)
-        self.shape = frames[0].image.shape if frames else (0, 0)
-
-    def frames(self, start: int = 0, stop: int | None = None) -> Iterator[Frame]:
-        for f in self._frames:
-            if f.index >= start and (stop is None or f.index < stop):
-                yield f
-
-
 def cacheable(tracker: str, config: Any) -> bool:
-    """Whether trials of ``tracker`` with ``config`` can replay a prepared clip."""
-    return tracker == "gewc" and config.detection.mode == "cfar"
+    """Whether trials of ``tracker`` with ``config`` can replay a prepared clip: the tracker
+    takes a front end and searches whole frames, and the front end is independent of the
+    tracks with ``config``."""
+    from wfviz.trackers import TRACKERS
+
+    cls = TRACKERS[tracker].tracker
+    return getattr(cls, "searches_whole_frames", False) and FrontEnd.independent_of_tracks(config)
 
 
 def _nbytes(frames: list[PreparedFrame]) -> int:
@@ -79,7 +66,7 @@ def _nbytes(frames: list[PreparedFrame]) -> int:
     return total
 
 
-def replay(spec: str, stop: int | None, config: Any) -> tuple[ReplayClip, ReplayFrontEnd]:
+def replay(spec: str, stop: int | None, config: Any) -> tuple[MemoryClip, ReplayFrontEnd]:
     """The clip ``spec`` (frames before ``stop``) and a front end that replays it for
     ``config``, prepared now or taken from the cache."""
     from wfviz.io.clip import open_clip
@@ -102,4 +89,4 @@ def replay(spec: str, stop: int | None, config: Any) -> tuple[ReplayClip, Replay
     else:
         STATS["hits"] += 1
     frames, prepared, _ = hit
-    return ReplayClip(clip.name, frames, clip.fps), ReplayFrontEnd(config, prepared)
+    return MemoryClip(clip.name, frames, clip.fps), ReplayFrontEnd(config, prepared)

@@ -18,12 +18,11 @@ default space (``SEARCH_SPACE`` beside its configuration; ``wfviz tune --print-s
 from __future__ import annotations
 
 import dataclasses
-import math
 from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, get_type_hints
 
-from wfviz.config import ConfigError, _closest, _coerce, config_from_dict, config_to_toml, read_toml
+from wfviz.config import ConfigError, _closest, _coerce, _toml_value, config_from_dict, config_to_toml, read_toml
 
 
 @dataclass(frozen=True)
@@ -142,15 +141,6 @@ def _ends(p: Param) -> tuple[Any, ...]:
     return (int(p.low), int(p.high)) if p.kind == "int" else (p.low, p.high)
 
 
-def nested(values: dict[str, Any]) -> dict[str, dict[str, Any]]:
-    """{section.key: value} as {section: {key: value}}."""
-    out: dict[str, dict[str, Any]] = {}
-    for name, value in values.items():
-        section, key = name.split(".", 1)
-        out.setdefault(section, {})[key] = value
-    return out
-
-
 def make_config(cls: type, params: dict[str, Any], fixed: dict[str, Any] | None = None,
                 base: Any | None = None) -> Any:
     """The ``cls`` configuration of ``base`` (defaults when None) with ``fixed`` and then
@@ -189,30 +179,20 @@ def space_to_toml(space: SearchSpace, tracker: str) -> str:
     for p in space.params:
         section, key = p.name.split(".", 1)
         if p.kind == "choice":
-            spec = "{ choices = [" + ", ".join(_toml(v) for v in p.choices) + "] }"
+            spec = "{ choices = [" + ", ".join(_toml_value(v) for v in p.choices) + "] }"
         else:
             lo, hi = _ends(p)
-            spec = f"{{ low = {_toml(lo)}, high = {_toml(hi)}"
+            spec = f"{{ low = {_toml_value(lo)}, high = {_toml_value(hi)}"
             spec += ", log = true" if p.log else ""
             spec += f", step = {p.step}" if p.step not in (None, 1) else ""
             spec += " }"
         sections.setdefault(section, []).append(f"{key} = {spec}")
     for name, value in space.fixed.items():
         section, key = name.split(".", 1)
-        sections.setdefault(section, []).append(f"{key} = {_toml(value)}")
+        sections.setdefault(section, []).append(f"{key} = {_toml_value(value)}")
     for section, body in sections.items():
         lines += ["", f"[{section}]", *body]
     return "\n".join(lines) + "\n"
-
-
-def _toml(value: Any) -> str:
-    if isinstance(value, bool):
-        return "true" if value else "false"
-    if isinstance(value, str):
-        return f'"{value}"'
-    if isinstance(value, float) and math.isfinite(value):
-        return repr(value)
-    return str(value)
 
 
 def best_toml(config: Any, header: str) -> str:

@@ -15,14 +15,13 @@ from __future__ import annotations
 
 import json
 import math
-import signal
-import threading
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
 from typing import Any
 
 from wfviz.config import ConfigError
+from wfviz.run import StopSignals
 from wfviz.tune.clips import StudyClip
 from wfviz.tune.space import Param, SearchSpace, config_dict, make_config
 from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores
@@ -77,7 +76,6 @@ class StudyState:
     trials: list[Any]
     interrupted: bool = False
     ran: int = 0
-    directions: tuple[str, ...] = ()
     notes: list[str] = field(default_factory=list)
 
 
@@ -171,27 +169,6 @@ def _close_stale(study: Any) -> int:
     return len(stale)
 
 
-class _Interrupt:
-    """SIGINT/SIGTERM set ``hit`` while active (main thread only)."""
-
-    def __init__(self) -> None:
-        self.hit = False
-        self._old: dict[int, Any] = {}
-
-    def __enter__(self) -> _Interrupt:
-        if threading.current_thread() is threading.main_thread():
-            for sig in (signal.SIGINT, signal.SIGTERM):
-                self._old[sig] = signal.signal(sig, self._handle)
-        return self
-
-    def _handle(self, _signum: int, _frame: object) -> None:
-        self.hit = True
-
-    def __exit__(self, *exc: object) -> None:
-        for sig, old in self._old.items():
-            signal.signal(sig, old)
-
-
 def run_study(settings: StudySettings, out: Path,
               on_batch: Callable[[StudyState], None] | None = None) -> StudyState:
     """Run trials until the study in ``out`` has ``settings.trials`` finished ones (a failed
@@ -201,8 +178,8 @@ def run_study(settings: StudySettings, out: Path,
 
     out.mkdir(parents=True, exist_ok=True)
     study = open_study(out, settings)
-    metrics, directions = OBJECTIVES[settings.objective]
-    state = StudyState(finished(study), directions=directions)
+    metrics = OBJECTIVES[settings.objective][0]
+    state = StudyState(finished(study))
     stale = _close_stale(study)
     if stale:
         state.notes.append(f"{stale} trial(s) left running by a stopped run recorded as failed")
@@ -212,9 +189,13 @@ def run_study(settings: StudySettings, out: Path,
 
     cls = config_class(settings.tracker)
     pool = make_pool(settings.workers, settings.ray_address, settings.use_ray)
+    cut = False  # a trial was cut short (in this process, its own run caught the signal)
     try:
-        with _Interrupt() as stop:
-            while len(finished(study)) < settings.trials and not stop.hit:
+        with StopSignals() as signals:
+            def stop() -> bool:
+                return cut or signals.signum is not None
+
+            while len(finished(study)) < settings.trials and not stop():
                 batch = min(settings.workers, settings.trials - len(finished(study)))
                 asked, tasks = [], []
                 for _ in range(batch):
@@ -233,16 +214,15 @@ def run_study(settings: StudySettings, out: Path,
                     tasks.append(TrialTask(trial.number, settings.tracker, config_dict(config),
                                            settings.clips, settings.stop, settings.gate,
                                            str(out / "work"), settings.cache))
-                outcomes = pool.run(tasks, lambda: stop.hit) if tasks else []
+                outcomes = pool.run(tasks, stop) if tasks else []
                 for trial, outcome in zip(asked, outcomes):
                     _tell(study, trial, outcome, metrics, tune_labels, valid_labels)
                     state.ran += 1
                 state.trials = finished(study)
-                if any(o is None or o.error == "interrupted" for o in outcomes):
-                    stop.hit = True
+                cut = any(o is None or o.error == "interrupted" for o in outcomes)
                 if on_batch is not None:
                     on_batch(state)
-            state.interrupted = stop.hit and len(finished(study)) < settings.trials
+            state.interrupted = stop() and len(finished(study)) < settings.trials
     finally:
         pool.close()
     state.trials = finished(study)

@@ -44,6 +44,9 @@ class GEWCTracker:
     """Streams frames through the GEWC pipeline; ``step`` returns a :class:`GEWCResult`."""
 
     name = "gewc"
+    #: its front end runs on whole frames (no search windows that follow the tracks): what
+    #: comes before detection can be prepared once and replayed (``wfviz tune``'s cache)
+    searches_whole_frames = True
 
     def __init__(self, config: GEWCConfig | None = None, front_end: FrontEnd | None = None) -> None:
         """``front_end``: the shared stages to use (default: a new :class:`FrontEnd` of
