@@ -1,4 +1,4 @@
-"""Command line: ``wfviz record | track | demo | tune | eval | config`` and more. Wiring only; no stage work here."""
+"""Command line: ``wfviz record | track | demo | tune | compare | eval | config`` and more. Wiring only; no stage work here."""
 
 from __future__ import annotations
 
@@ -554,6 +554,62 @@ def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
     recs = [f for f in result.files if f.parent.name == "recordings"]
     if recs:
         out.print(f"  recordings: {len(recs)} in {recs[0].parent}", highlight=False, markup=False)
+
+
+@app.command()
+@_guarded
+def compare(
+    clip: ClipArg,
+    run_specs: Annotated[Optional[list[str]], typer.Option("--run", help="A run: NAME (a tracker with its defaults), NAME:CONFIG.toml or LABEL=NAME:CONFIG.toml (repeat; at least two runs in all).", show_default=False)] = None,
+    study: Annotated[Optional[Path], typer.Option("--study", help="A `wfviz tune` study folder: its --top best trials and the defaults are runs too.")] = None,
+    top: Annotated[int, typer.Option("--top", min=1, help="With --study: how many of its best trials.")] = 3,
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd; default recordings/<clip>-compare.rrd); each run's tracks CSV goes beside it as <stem>-<label>.csv.")] = None,
+    truth: Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV: score every run, mark where they differ against truth (a synth: clip brings its own).")] = None,
+    start: StartOpt = 0,
+    stop: StopOpt = None,
+    fps: FpsOpt = None,
+    image_every: ImageEveryOpt = 1,
+    no_images: NoImagesOpt = False,
+    gate: GateOpt = 3.0,
+    skip_bad_frames: SkipBadOpt = False,
+    nan_as_zero: NanOpt = False,
+) -> None:
+    """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked."""
+    from wfviz.compare import check_labels, compare as run_compare, format_summary, parse_run, study_runs
+
+    runs = [parse_run(s) for s in run_specs or []]
+    if study is not None:
+        if not study.is_dir():
+            raise ValueError(f"--study {study}: no such folder")
+        runs += study_runs(study, top)
+    check_labels(runs)
+    truth_points = _read_truth(truth)
+    source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
+    own_truth = truth_points is None and hasattr(source, "truth_points")
+    if own_truth:
+        truth_points = source.truth_points()
+    output = output or Path("recordings") / f"{source.name}-compare.rrd"
+    csvs = [output.with_name(f"{output.stem}-{r.label}.csv") for r in runs]
+    configs = tuple((Path(s.split(":", 1)[1]), "a --run config file") for s in run_specs or [] if ":" in s)
+    _guard_outputs(output, *csvs, clip=source, inputs=((truth, "the truth file"), *configs))
+    total = source.n_frames
+    if total is not None:
+        total = max(0, min(total, stop if stop is not None else total) - start)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
+                  console=err, transient=True, disable=not err.is_terminal) as progress:
+        task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
+        summary = run_compare(source, runs, recording=output, tracks=csvs, truth=truth_points, gate=gate,
+                              image_every=0 if no_images else image_every, source=str(clip), start=start,
+                              stop=stop, on_frame=lambda n: progress.update(task, completed=n))
+    state = (f"[yellow]interrupted by {signal.Signals(summary.signal).name}[/]" if summary.signal else "done")
+    out.print(f"{state}: {len(runs)} runs over {summary.frames} frames in {summary.seconds:.2f} s"
+              + (" (truth: the synthetic clip's own)" if own_truth else ""), highlight=False)
+    out.print(format_summary(summary), highlight=False, markup=False)
+    for r in summary.runs:
+        out.print(f"  tracks {r.label}: {r.tracks_csv}", highlight=False, markup=False)
+    out.print(f"  recording: {output}\n  open it:   rerun {output}", highlight=False, markup=False)
+    if summary.signal:
+        raise typer.Exit(128 + summary.signal)
 
 
 @app.command("config")

@@ -224,6 +224,27 @@ def _times(frames: list[int], times: list[float]) -> list[rr.TimeColumn]:
     return [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
 
 
+class RootedStream:
+    """A recording stream whose entity paths all lie below ``root`` (``"/"`` is the root
+    itself), for a recorder that writes one run of several into one recording."""
+
+    def __init__(self, stream: rr.RecordingStream, root: str) -> None:
+        self.stream, self.root = stream, root.strip("/")
+
+    def path(self, entity: str) -> str:
+        entity = entity.strip("/")
+        return f"{self.root}/{entity}" if entity else self.root
+
+    def log(self, entity: str, *args: object, **kwargs: object) -> None:
+        self.stream.log(self.path(entity), *args, **kwargs)  # type: ignore[arg-type]
+
+    def send_columns(self, entity: str, **kwargs: object) -> None:
+        self.stream.send_columns(self.path(entity), **kwargs)  # type: ignore[arg-type]
+
+    def set_time(self, timeline: str, **kwargs: object) -> None:
+        self.stream.set_time(timeline, **kwargs)  # type: ignore[arg-type]
+
+
 class Recorder:
     """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
 
@@ -231,10 +252,22 @@ class Recorder:
     scalars and text are logged every frame.
     """
 
-    def __init__(self, path: Path, *, source: str, tracker: str, config_text: str,
-                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None) -> None:
-        self.rec = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
-        self.rec.save(path, default_blueprint=self.blueprint())
+    def __init__(self, path: Path | None, *, source: str, tracker: str, config_text: str,
+                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None,
+                 stream: rr.RecordingStream | None = None, root: str = "", raw_image: bool = True,
+                 shared_images: frozenset[str] = frozenset()) -> None:
+        """``stream`` and ``root``: write into another recording, every entity below ``root``
+        (``wfviz compare``'s ``runs/<label>``), which owns the file, the time and the blueprint;
+        ``raw_image``: log the raw frame (False: the owner logs it once); ``shared_images``:
+        image entities another run of the same front end logs instead."""
+        self._owner = stream is None
+        if stream is None:
+            self.rec: rr.RecordingStream | RootedStream = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
+            self.rec.save(path, default_blueprint=self.blueprint())
+        else:
+            self.rec = RootedStream(stream, root)
+        self.raw_image = raw_image
+        self.shared_images = shared_images
         self.image_every = image_every
         self.jpeg_quality = jpeg_quality
         self._jpeg_noted = False
@@ -307,7 +340,7 @@ class Recorder:
         rec.set_time("time", duration=frame.time)
         self._now = (frame.index, frame.time)
         images = self.image_every > 0 and self.frames_logged % self.image_every == 0
-        if images:
+        if images and self.raw_image:
             self.image("camera/image", frame.image)
         self._log_common(result)
         self.log_stages(result, images)
@@ -316,10 +349,13 @@ class Recorder:
 
     def image(self, path: str, image: np.ndarray, lossless: bool = False) -> None:
         """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set, it is 8-bit and not
-        ``lossless`` (a map of measured values, not a picture).
+        ``lossless`` (a map of measured values, not a picture). Not logged when it is one of the
+        ``shared_images``.
 
         Sent as its own chunk right away, past the batcher: megabytes of pixels would otherwise
         fill the batch and flush every overlay entity with it, making many small chunks."""
+        if path in self.shared_images:
+            return
         if self.jpeg_quality is not None and image.dtype != np.uint8 and not self._jpeg_noted and not lossless:
             self._jpeg_noted = True
             warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
@@ -472,8 +508,11 @@ class Recorder:
         self.text(text, level)
 
     def close(self) -> None:
-        """Send the final default blueprint (per-track views), flush and close the file."""
+        """Send the final default blueprint (per-track views), flush and close the file (a
+        recorder writing into another's ``stream`` only sends what it holds)."""
         self.columns.flush()
+        if not self._owner:
+            return
         ids = sorted(self.confirmed_ids)
         if ids:
             self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)

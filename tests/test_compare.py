@@ -1,0 +1,239 @@
+"""`wfviz compare`: several runs over one clip in one recording, their disagreements marked."""
+
+from __future__ import annotations
+
+import subprocess
+import sys
+from collections import defaultdict
+from pathlib import Path
+
+import numpy as np
+import pytest
+from rerun.chunk import RrdReader
+from scipy.optimize import linear_sum_assignment
+
+from wfviz.compare import Disagreements, compare, parse_run
+from wfviz.compare.differences import clusters
+from wfviz.evaluate import read_points
+from wfviz.io.clip import open_clip
+
+CLIP = "synth:fov70-four-targets:0"
+STOP = "70"
+REQUIRED = ("camera/detections", "camera/predictions", "camera/gates", "camera/tracks", "camera/truth",
+            "timing/total", "config", "eval/cle", "eval/summary", "log")
+
+
+def wfviz(*args: str, cwd: Path) -> subprocess.CompletedProcess:
+    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True, text=True,
+                          timeout=600)
+
+
+def _rows(path: Path) -> dict[str, list[tuple[int, object]]]:
+    """entity -> [(frame, row of the first non-index column)] of every temporal chunk."""
+    out: dict[str, list] = defaultdict(list)
+    for chunk in RrdReader(path).stream():
+        b = chunk.to_record_batch()
+        if chunk.is_static or "frame" not in b.schema.names:
+            out.setdefault(chunk.entity_path, [])
+            continue
+        data = [n for n in b.schema.names if ":" in n and not n.startswith("frame") and n not in ("time", "log_time", "log_tick")]
+        col = next((n for n in data if n.endswith("positions") or n.endswith("scalars") or n.endswith("text")), None)
+        frames = b.column("frame").to_pylist()
+        values = b.column(col).to_pylist() if col else [None] * len(frames)
+        out[chunk.entity_path] += list(zip(frames, values))
+    return out
+
+
+def _matched(tracks: dict, truth: dict, gate: float = 3.0) -> dict[int, set[int]]:
+    """Per frame, the targets a run's confirmed tracks match (own assignment, for the test)."""
+    out = {}
+    for f, gt in truth.items():
+        tr = tracks.get(f, [])
+        if not gt or not tr:
+            out[f] = set()
+            continue
+        d = np.hypot(*(np.array([p[1:] for p in gt])[:, None, :] - np.array([p[1:] for p in tr])[None]).transpose(2, 0, 1))
+        r, c = linear_sum_assignment(np.where(d <= gate, d, 1e9))
+        out[f] = {gt[i][0] for i, j in zip(r, c) if d[i, j] <= gate}
+    return out
+
+
+@pytest.fixture(scope="module")
+def two_runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
+    d = tmp_path_factory.mktemp("compare")
+    (d / "strict.toml").write_text("[detection]\nk_sigma = 6.5\n")
+    proc = wfviz("compare", CLIP, "--run", "gewc", "--run", "strict=gewc:strict.toml", "--stop", STOP,
+                 "-o", "out/cmp.rrd", cwd=d)
+    assert proc.returncode == 0, proc.stderr
+    assert "truth: the synthetic clip's own" in proc.stdout
+    assert "gewc " in proc.stdout and "strict " in proc.stdout and "MOTA" in proc.stdout
+    return d
+
+
+def test_two_runs_each_under_its_root_with_the_raw_frame_once(two_runs: Path) -> None:
+    rows = _rows(two_runs / "out" / "cmp.rrd")
+    for label in ("gewc", "strict"):
+        for e in REQUIRED:
+            assert f"/runs/{label}/{e}" in rows, (label, e)
+        assert f"/runs/{label}/camera/image" not in rows  # the raw frame is shared
+        for m in ("pd", "false_tracks", "cle", "tracks", "ms"):
+            assert len(rows[f"/compare/metrics/{m}/{label}"]) == int(STOP), m
+    assert len(rows["/camera/image"]) == int(STOP)
+    # the second run shares the first's front end: its residual is the first's
+    assert "/runs/gewc/suppressed/image" in rows and "/runs/strict/suppressed/image" not in rows
+    assert "/compare/summary" in rows
+
+
+def test_tracks_csvs_equal_single_runs(two_runs: Path) -> None:
+    """Sharing the front end changes nothing: each CSV equals `wfviz track` of that config."""
+    for label, extra in (("gewc", []), ("strict", ["--config", "strict.toml"])):
+        proc = wfviz("track", CLIP, "--stop", STOP, "--tracks", f"{label}.csv", *extra, cwd=two_runs)
+        assert proc.returncode == 0, proc.stderr
+        assert (two_runs / f"{label}.csv").read_bytes() == (two_runs / "out" / f"cmp-{label}.csv").read_bytes()
+
+
+def test_missed_marks_where_the_runs_match_different_targets(two_runs: Path) -> None:
+    """compare/marks/missed has points exactly on the frames where the two runs' matched
+    targets differ, computed here from the CSVs and the truth; each stretch starts with a
+    log line naming the run that missed."""
+    clip = open_clip(CLIP)
+    shown, _ = clip.truth_points()
+    shown = {f: v for f, v in shown.items() if f < int(STOP)}
+    a = _matched(read_points(two_runs / "out" / "cmp-gewc.csv", "track_id", True), shown)
+    b = _matched(read_points(two_runs / "out" / "cmp-strict.csv", "track_id", True), shown)
+    expect = sorted(f for f in shown if a[f] != b[f])
+    assert expect, "the two configurations never disagree: the test has nothing to check"
+    rows = _rows(two_runs / "out" / "cmp.rrd")
+    marked = sorted(f for f, pts in rows["/compare/marks/missed"] if pts)
+    assert marked == expect
+    onsets = [f for f in expect if f - 1 not in expect]
+    log = rows["/compare/log"]
+    assert {f for f, _ in log} >= set(onsets)
+    text = " ".join(str(t) for _, t in log)
+    assert "missed by" in text and ("strict" in text or "gewc" in text)
+
+
+def test_disagreements_without_truth() -> None:
+    d = Disagreements(["a", "b"], gate=3.0)
+    same = d.update(0, [[(1, 10.0, 10.0)], [(7, 11.0, 10.0)]])
+    assert same.marks == ()
+    one = d.update(1, [[(1, 10.0, 10.0), (2, 50.0, 50.0)], [(7, 11.0, 10.0)]])
+    assert [m.kind for m in one.marks] == ["unmatched"] and one.marks[0].runs == ("a",)
+    assert one.began == one.marks and "not in b" in one.marks[0].text
+    again = d.update(2, [[(1, 10.0, 10.0), (2, 50.0, 50.0)], [(7, 11.0, 10.0)]])
+    assert again.began == () and len(again.marks) == 1  # it goes on: no new line
+    done = d.update(3, [[(1, 10.0, 10.0)], [(7, 11.0, 10.0)]])
+    assert done.marks == () and len(done.ended) == 1
+
+
+def test_disagreements_with_truth_switch_and_false_track() -> None:
+    d = Disagreements(["a", "b"], gate=3.0)
+    truth = [(5, 100.0, 100.0)]
+    d.update(0, [[(1, 100.0, 100.0)], [(3, 100.5, 100.0)]], truth)
+    c = d.update(1, [[(2, 100.0, 100.0), (9, 20.0, 20.0)], [(3, 100.5, 100.0), (4, 20.5, 20.0)]], truth)
+    kinds = sorted(m.kind for m in c.marks)
+    assert kinds == ["switch"], c.marks  # the false tracks agree (within the gate)
+    assert "track 1 -> 2" in c.marks[0].text
+    c = d.update(2, [[(2, 100.0, 100.0), (9, 20.0, 20.0)], [(4, 60.0, 60.0)]], truth)
+    assert sorted(m.kind for m in c.marks) == ["false_track", "false_track", "missed"]
+    assert {m.text for m in c.marks if m.kind == "false_track"} == {
+        "false track only in a 9, not in b", "false track only in b 4, not in a"}
+    missed = next(m for m in c.marks if m.kind == "missed")
+    assert missed.runs == ("b",) and "T5 missed by b (matched by a)" == missed.text
+    assert c.runs[0].pd == 1.0 and c.runs[1].pd == 0.0 and c.runs[1].false_tracks == 1
+
+
+def test_clusters_take_one_point_per_run() -> None:
+    groups = clusters([[(1, 0.0, 0.0), (2, 1.0, 0.0)], [(3, 0.5, 0.0)]], gate=3.0)
+    assert sorted(len(g) for g in groups) == [1, 2]
+    assert all(len({r for r, _ in g}) == len(g) for g in groups)
+
+
+def test_compare_api_keeps_nothing_on_error(tmp_path: Path) -> None:
+    """A run failing mid-clip: no recording, no CSV, not even a temporary one."""
+    class Boom(Exception):
+        pass
+
+    clip = open_clip("synth:lowsnr-tbd:0")
+    runs = [parse_run("tbd"), parse_run("b=tbd")]
+
+    def fail(n: int) -> None:
+        if n == 3:
+            raise Boom()
+
+    with pytest.raises(Boom):
+        compare(clip, runs, recording=tmp_path / "c.rrd", tracks=[tmp_path / "a.csv", tmp_path / "b.csv"],
+                on_frame=fail)
+    assert list(tmp_path.iterdir()) == []
+
+
+def test_compare_without_truth_marks_unmatched_tracks(tmp_path: Path) -> None:
+    frames = np.stack([f.image for f in open_clip("synth:fov70-four-targets:1").frames(0, 50)])
+    np.save(tmp_path / "clip.npy", frames)
+    proc = wfviz("compare", "clip.npy", "--run", "gewc", "--run", "fusion", "-o", "c.rrd", "--image-every", "10",
+                 cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    assert "MOTA" not in proc.stdout and "frames with a disagreement" in proc.stdout
+    rows = _rows(tmp_path / "c.rrd")
+    assert len(rows["/camera/image"]) == 5
+    assert "/compare/metrics/pd/gewc" not in rows and len(rows["/compare/metrics/tracks/fusion"]) == 50
+    # fusion and gewc confirm at different frames: somewhere one has a track the other lacks
+    assert any(pts for _, pts in rows["/compare/marks/unmatched"])
+    assert (tmp_path / "c-gewc.csv").is_file() and (tmp_path / "c-fusion.csv").is_file()
+
+
+@pytest.mark.parametrize("args, message", [
+    (["--run", "nope", "--run", "gewc"], "unknown tracker 'nope'"),
+    (["--run", "gewc:missing.toml", "--run", "gewc"], "missing.toml: no such config file"),
+    (["--run", "gewc", "--run", "gewc"], "label 'gewc' given twice"),
+    (["--run", "gewc"], "at least two runs"),
+    (["--run", "a b=gewc", "--run", "gewc"], "label 'a b' must be"),
+    (["--run", "gewc:", "--run", "tbd"], "no config file after ':'"),
+    (["--study", "nowhere", "--run", "gewc"], "--study nowhere: no such folder"),
+])
+def test_bad_specs_are_one_line_errors(tmp_path: Path, args: list[str], message: str) -> None:
+    proc = wfviz("compare", "synth:lowsnr-tbd:0", *args, "-o", "c.rrd", cwd=tmp_path)
+    assert proc.returncode == 2, proc.stdout
+    assert message in proc.stderr and len(proc.stderr.strip().splitlines()) == 1, proc.stderr
+    assert not any(tmp_path.iterdir())
+
+
+def test_study_top_trials_and_defaults(tmp_path: Path) -> None:
+    proc = wfviz("tune", "synth:lowsnr-tbd:0", "--tracker", "tbd", "--trials", "3", "--workers", "1",
+                 "--out", "study", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    proc = wfviz("compare", "synth:lowsnr-tbd:0", "--study", "study", "--top", "2", "-o", "c.rrd", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    rows = _rows(tmp_path / "c.rrd")
+    roots = {p.split("/")[2] for p in rows if p.startswith("/runs/")}
+    assert "defaults" in roots and len(roots) == 3 and all(r == "defaults" or r.startswith("trial-") for r in roots)
+
+
+
+def _vulkan_ready() -> bool:
+    from test_screenshot import _vulkan_missing  # the screenshot tests' own check
+
+    return _vulkan_missing() is None
+
+
+@pytest.mark.skipif(not _vulkan_ready(), reason="no Vulkan software driver (see tests/test_screenshot.py)")
+def test_screenshot_shows_both_runs_and_a_shared_plot(two_runs: Path) -> None:
+    """The default blueprint in the real viewer: both runs' camera frames side by side above,
+    and a metric plot below with a series in each run's colour."""
+    from PIL import Image
+
+    from wfviz.record.compare import run_color
+    from wfviz.record.screenshot import render_screenshot
+
+    png = render_screenshot(two_runs / "out" / "cmp.rrd", two_runs / "shot.png", frame=60, width=1400,
+                            height=900, timeout=180)
+    rgb = np.asarray(Image.open(png).convert("RGB")).astype(np.int32)
+    h, w, _ = rgb.shape
+    grey = rgb.mean(axis=2)
+    for x0, x1 in ((0.02, 0.48), (0.52, 0.98)):  # each run's view: the fisheye frame, many grey levels
+        view = grey[int(0.08 * h): int(0.55 * h), int(x0 * w): int(x1 * w)]
+        assert view.std() > 20 and len(np.unique(view.astype(int))) > 60, (x0, view.std())
+    plots = rgb[int(0.62 * h):, :]
+    for i in range(2):
+        near = np.abs(plots - np.array(run_color(i))).sum(axis=2) < 40
+        assert near.sum() > 30, f"no series in run {i}'s colour in the plots"

@@ -1,0 +1,170 @@
+"""``wfviz compare``'s recording: every run under ``runs/<label>/`` (the paths of a single
+recording below that root, by the run's own adapter), the raw frame once at ``camera/image``,
+and the comparison under ``compare/`` (metrics with a series per run, disagreement marks and
+log, the closing table). See docs/recording.md."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+import numpy as np
+import rerun as rr
+import rerun.blueprint as rrb
+
+from wfviz.compare.differences import KINDS, FrameComparison
+from wfviz.compare.runs import RunSpec
+from wfviz.evaluate import format_table, frame_errors
+from wfviz.io.frames import Frame
+from wfviz.record import recorder_class
+from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer, _times
+
+#: images a run sharing another run's front end leaves to it (the same arrays)
+SHARED_IMAGES = frozenset({"suppressed/image", "suppressed/noise"})
+RUN_COLORS = ((31, 160, 255), (255, 127, 14), (44, 200, 80), (230, 60, 60), (170, 110, 230), (140, 86, 75),
+              (240, 120, 200), (190, 190, 40), (23, 210, 210), (150, 150, 150))
+MARK_COLORS = {"missed": (255, 40, 40), "false_track": (255, 160, 0), "switch": (255, 0, 255),
+               "unmatched": (255, 160, 0)}
+METRICS = (("pd", "Pd per frame"), ("false_tracks", "False tracks"), ("cle", "CLE (px)"),
+           ("tracks", "Confirmed tracks"), ("ms", "ms per frame"))
+
+
+def run_color(i: int) -> tuple[int, int, int]:
+    return RUN_COLORS[i % len(RUN_COLORS)]
+
+
+def compare_blueprint(labels: list[str], image_of: list[str], truth: bool) -> rrb.Blueprint:
+    """The runs' camera views side by side (raw frame, the run's overlays, the marks), their
+    residuals in a second tab, the metrics with one series per run, the disagreement log and
+    the closing table. ``image_of[i]``: the run whose residual run ``i`` shows."""
+    cams = [rrb.Spatial2DView(origin="/", name=label, contents=[
+        "/camera/image", f"/runs/{label}/camera/**", "/compare/marks/**"]) for label in labels]
+    residuals = [rrb.Spatial2DView(origin="/", name=f"{label}: background-suppressed", contents=[
+        f"/runs/{src}/suppressed/**", f"/runs/{label}/camera/detections", f"/runs/{label}/camera/predictions",
+        "/compare/marks/**"]) for label, src in zip(labels, image_of)]
+    shown = [m for m in METRICS if truth or m[0] in ("tracks", "ms")]
+    plots = [rrb.TimeSeriesView(origin=f"compare/metrics/{m}", name=n) for m, n in shown]
+    half = (len(plots) + 1) // 2
+    return rrb.Blueprint(
+        rrb.Vertical(
+            rrb.Tabs(rrb.Horizontal(*cams, name="Camera + overlays"),
+                     rrb.Horizontal(*residuals, name="Background-suppressed")),
+            rrb.Horizontal(
+                rrb.Tabs(*plots[:half]), rrb.Tabs(*plots[half:]),
+                rrb.Tabs(rrb.TextLogView(origin="compare/log", name="Disagreements"),
+                         rrb.TextDocumentView(origin="compare/summary", name="Scores"),
+                         *[rrb.TextLogView(origin=f"runs/{label}/log", name=f"{label} log") for label in labels]),
+            ),
+            row_shares=[3, 2],
+        ),
+        rrb.BlueprintPanel(state="collapsed"),
+        rrb.SelectionPanel(state="collapsed"),
+        rrb.TimePanel(timeline="frame", state="collapsed"),
+    )
+
+
+class CompareRecorder:
+    """Writes one comparison recording (see the module docstring)."""
+
+    def __init__(self, path: Path, runs: list[RunSpec], groups: list[int], *, source: str,
+                 image_every: int = 1, truth: bool = False, gate: float = 3.0) -> None:
+        from wfviz.io.outputs import temp_path
+
+        self.path, self.temp = path, temp_path(path)
+        self.labels = [r.label for r in runs]
+        self.rec = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
+        image_of = [self.labels[g] for g in groups]
+        try:
+            self.rec.save(self.temp, default_blueprint=compare_blueprint(self.labels, image_of, truth))
+        except BaseException:
+            self.temp.unlink(missing_ok=True)
+            raise
+        self.image_every, self.gate = image_every, gate
+        self.frames_logged = 0
+        self.columns = ColumnBuffer(self.rec)
+        self.runs: list[Any] = []
+        for i, (r, g) in enumerate(zip(runs, groups)):
+            cls = recorder_class(r.tracker)
+            self.runs.append(cls(None, source=f"{source} ({r.source})", tracker=r.tracker, config_text=r.config_text,
+                                 image_every=image_every, trail_length=r.config.tracking.trail_length,
+                                 stream=self.rec, root=f"runs/{r.label}", raw_image=False,
+                                 shared_images=SHARED_IMAGES if g != i else frozenset()))
+        self.metrics = tuple(m for m, _ in METRICS if truth or m in ("tracks", "ms"))
+        for m in self.metrics:
+            for i, label in enumerate(self.labels):
+                self.rec.log(f"compare/metrics/{m}/{label}", rr.SeriesLines(colors=run_color(i), names=label,
+                                                                           widths=1.5), static=True)
+        self.rec.log("compare/runs", rr.TextDocument("\n".join(
+            f"- **{r.label}**: {r.tracker}, {r.source}" + (f" (front end shared with {self.labels[g]})" if g != i else "")
+            for i, (r, g) in enumerate(zip(runs, groups))), media_type=rr.MediaType.MARKDOWN), static=True)
+        self._closed = False
+
+    def log(self, frame: Frame, results: list[Any], cmp: FrameComparison, ms: list[float],
+            shown: list | None, hidden: list | None) -> None:
+        """One frame: the raw image (every ``image_every``), every run's stages, the marks, the
+        disagreements that began or ended, the metrics."""
+        rec = self.rec
+        rec.set_time("frame", sequence=frame.index)
+        rec.set_time("time", duration=frame.time)
+        if self.image_every > 0 and self.frames_logged % self.image_every == 0:
+            image = rr.Image(frame.image)
+            rec.send_columns("camera/image", indexes=_times([frame.index], [frame.time]), columns=[
+                rr.ComponentColumn(b.component_descriptor(), b) for b in image.as_component_batches()])
+        for sub, result in zip(self.runs, results):
+            sub.log(frame, result)
+            if shown is not None:
+                pts = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
+                sub.log_truth(shown, hidden or [], frame_errors(pts, shown, self.gate, hidden or []))
+        for kind in KINDS:
+            ms_ = [m for m in cmp.marks if m.kind == kind]
+            rec.log(f"compare/marks/{kind}", rr.Points2D(
+                np.array([(m.x, m.y) for m in ms_], dtype=np.float32).reshape(-1, 2),
+                labels=[m.text for m in ms_], colors=MARK_COLORS[kind], radii=6.0, show_labels=False))
+        f, t = frame.index, frame.time
+        for m in cmp.began:
+            self.columns.text("compare/log", f, t, m.text, "WARN")
+        for m in cmp.ended:
+            self.columns.text("compare/log", f, t, f"agree again: {m.text}", "INFO")
+        self.columns.scalar("compare/disagreements", f, t, float(len(cmp.marks)))
+        for i, (label, rf) in enumerate(zip(self.labels, cmp.runs)):
+            values = {"pd": rf.pd, "false_tracks": rf.false_tracks, "cle": rf.cle, "tracks": rf.tracks, "ms": ms[i]}
+            for name in self.metrics:
+                self.columns.scalar(f"compare/metrics/{name}/{label}", f, t, float(values[name]))
+        self.frames_logged += 1
+        self.columns.end_frame()
+
+    def finish(self, summary: Any) -> None:
+        """The closing table (``compare/summary``), every run's scores, a warning when a signal
+        stopped the run; the file is completed and renamed into place."""
+        import signal
+
+        from wfviz.compare.session import format_summary
+        from wfviz.io.outputs import replace_into
+
+        self.rec.log("compare/summary", rr.TextDocument(f"```\n{format_summary(summary)}\n```",
+                                                        media_type=rr.MediaType.MARKDOWN), static=True)
+        for sub, outcome in zip(self.runs, summary.runs):
+            if outcome.scores is not None:
+                sub.log_scores(format_table(outcome.scores))
+            if summary.signal is not None:
+                sub.log_message(f"interrupted by {signal.Signals(summary.signal).name} after {summary.frames} frames",
+                                level="WARN")
+            sub.close()
+        self._close()
+        replace_into(self.temp, self.path)
+
+    def abort(self) -> None:
+        """Remove the partial file."""
+        try:
+            self._close()
+        except Exception:  # noqa: BLE001 - the file is removed anyway
+            pass
+        self.temp.unlink(missing_ok=True)
+
+    def _close(self) -> None:
+        if not self._closed:
+            self._closed = True
+            self.columns.flush()
+            self.rec.flush()
+            self.rec.disconnect()
+
