@@ -64,6 +64,11 @@ FpsOpt = Annotated[Optional[float], typer.Option("--fps", min=0.001, help="Overr
 ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log images every N frames.")]
 JpegOpt = Annotated[Optional[int], typer.Option("--jpeg-quality", min=1, max=100, help="Store 8-bit images as JPEG at this quality (smaller, lossy; default: lossless). 16-bit images stay lossless.")]
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
+SpawnOpt = Annotated[bool, typer.Option("--spawn", help="Also stream the run live to a Rerun viewer (started, or the one already on --port).")]
+ConnectOpt = Annotated[Optional[str], typer.Option("--connect", help="Also stream the run live to a running viewer or server at this URL (rerun+http://HOST:PORT/proxy).", show_default=False)]
+ServeOpt = Annotated[bool, typer.Option("--serve", help="Also serve the run live while it lasts: a gRPC server on --bind:--port for a native or web viewer (with --bind 0.0.0.0 a web viewer is hosted on port 9090 too).")]
+BindOpt = Annotated[str, typer.Option("--bind", help="With --serve: the address to serve on (0.0.0.0: every interface).")]
+PortOpt = Annotated[int, typer.Option("--port", min=1, max=65535, help="With --spawn or --serve: the viewer's or server's gRPC port.")]
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
 SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
@@ -164,9 +169,22 @@ def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
                       highlight=False, markup=False, soft_wrap=True)
 
 
+def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int):  # noqa: ANN202
+    """The live view asked for (at most one of --spawn, --connect, --serve), or None."""
+    asked = [name for name, on in (("--spawn", spawn), ("--connect", connect is not None), ("--serve", serve)) if on]
+    if len(asked) > 1:
+        raise ValueError(f"{' and '.join(asked)}: choose one live view")
+    if not asked:
+        return None
+    from wfviz.record.live import Live
+
+    return Live("spawn" if spawn else "serve" if serve else "connect", url=connect, bind=bind, port=port)
+
+
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
-             jpeg_quality: int | None = None, inputs: tuple[tuple[Path | None, str], ...] = ()) -> RunSummary:
+             jpeg_quality: int | None = None, inputs: tuple[tuple[Path | None, str], ...] = (),
+             live=None) -> RunSummary:  # noqa: ANN001
     _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
     total = clip.n_frames
     if total is not None:
@@ -175,7 +193,9 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     if recording is not None:
         options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
                        trail_length=tracker.config.tracking.trail_length,
-                       jpeg_quality=jpeg_quality)
+                       jpeg_quality=jpeg_quality, live=live)
+        if live is not None:
+            err.print(f"wfviz: live: {live.describe()}", highlight=False, markup=False, soft_wrap=True)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -252,8 +272,14 @@ def record(
     gate: GateOpt = 3.0,
     skip_bad_frames: SkipBadOpt = False,
     nan_as_zero: NanOpt = False,
+    spawn: SpawnOpt = False,
+    connect: ConnectOpt = None,
+    serve: ServeOpt = False,
+    bind: BindOpt = "127.0.0.1",
+    port: PortOpt = 9876,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
+    live = _live(spawn, connect, serve, bind, port)
     trk = _tracker(tracker, config)
     truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
@@ -261,7 +287,8 @@ def record(
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
-                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, inputs=_inputs(truth, config))
+                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, inputs=_inputs(truth, config),
+                       live=live)
     _report(summary, tracks, output)
 
 
@@ -300,10 +327,16 @@ def demo(
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
     jpeg_quality: JpegOpt = None,
+    spawn: SpawnOpt = False,
+    connect: ConnectOpt = None,
+    serve: ServeOpt = False,
+    bind: BindOpt = "127.0.0.1",
+    port: PortOpt = 9876,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.synth.demo import demo_clip
 
+    live = _live(spawn, connect, serve, bind, port)
     trk = _tracker("gewc", config)
     clip = demo_clip(seed=seed, n_frames=frames)
     tracks = output.with_suffix(".csv")
@@ -322,7 +355,7 @@ def demo(
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
                        source=f"built-in demo (seed {seed}, {frames} frames)", truth=clip.truth_points(),
-                       jpeg_quality=jpeg_quality)
+                       jpeg_quality=jpeg_quality, live=live)
     out.print(f"  truth:     {truth}", highlight=False, markup=False)
     _report(summary, tracks, output)
 

@@ -17,6 +17,7 @@ import rerun.blueprint as rrb
 from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote
 from wfviz.io.frames import Frame
+from wfviz.record.live import Live, sinks
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
@@ -26,6 +27,7 @@ TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
 TRUTH_COLOR = (255, 255, 255, 200)
 TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
+LIVE_FLUSH_SECONDS = 10.0  # waiting for a live viewer at the end, at most
 EVENT_LEVELS = {EventKind.BORN: "DEBUG", EventKind.DELETED: "WARN"}  # others INFO; a tentative track's deletion: DEBUG
 
 
@@ -255,18 +257,20 @@ class Recorder:
     def __init__(self, path: Path | None, *, source: str, tracker: str, config_text: str,
                  image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None,
                  stream: rr.RecordingStream | None = None, root: str = "", raw_image: bool = True,
-                 shared_images: frozenset[str] = frozenset()) -> None:
+                 shared_images: frozenset[str] = frozenset(), live: Live | None = None) -> None:
         """``stream`` and ``root``: write into another recording, every entity below ``root``
         (``wfviz compare``'s ``runs/<label>``), which owns the file, the time and the blueprint;
         ``raw_image``: log the raw frame (False: the owner logs it once); ``shared_images``:
-        image entities another run of the same front end logs instead."""
+        image entities another run of the same front end logs instead; ``live``: stream to a
+        viewer or serve the run as well as writing the file (:mod:`wfviz.record.live`)."""
         self._owner = stream is None
         if stream is None:
             self.rec: rr.RecordingStream | RootedStream = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
-            self.rec.save(path, default_blueprint=self.blueprint())
+            self.rec.set_sinks(*sinks(path, live), default_blueprint=self.blueprint())
         else:
             self.rec = RootedStream(stream, root)
         self.raw_image = raw_image
+        self.live = live
         self.shared_images = shared_images
         self.image_every = image_every
         self.jpeg_quality = jpeg_quality
@@ -516,5 +520,12 @@ class Recorder:
         ids = sorted(self.confirmed_ids)
         if ids:
             self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)
-        self.rec.flush()
+        if self.live is None:
+            self.rec.flush()
+        else:  # a viewer gone or never reached must not hold up (or lose) the file
+            try:
+                self.rec.flush(timeout_sec=LIVE_FLUSH_SECONDS)
+            except RuntimeError as exc:
+                warnings.warn(f"live view: {' '.join(str(exc).split())}; the file is complete", ClipNote,
+                              stacklevel=2)
         self.rec.disconnect()
