@@ -18,7 +18,6 @@ import argparse
 import glob
 import json
 import math
-import os
 from pathlib import Path
 
 import cv2

@@ -24,7 +24,7 @@ def _frames(rrd: Path, entity: str = "/camera/image") -> list[int]:
     for c in RrdReader(rrd).stream():
         if c.entity_path == entity and not c.is_static:
             out += c.to_record_batch().column("frame").to_pylist()
-    return sorted(out)
+    return sorted(set(out))  # a frame where the image kind switches has a row clearing the other
 
 
 def _vulkan_ready() -> bool:

@@ -21,6 +21,7 @@ from wfviz.config import ConfigError, config_to_toml
 from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
 from wfviz.io.frames import Clip
 from wfviz.io.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
@@ -62,7 +63,8 @@ StartOpt = Annotated[int, typer.Option("--start", min=0, help="First frame (0-ba
 StopOpt = Annotated[Optional[int], typer.Option("--stop", min=1, help="Stop before this frame.")]
 FpsOpt = Annotated[Optional[float], typer.Option("--fps", min=0.001, help="Override the clip's frame rate.")]
 ImageEveryOpt = Annotated[int, typer.Option("--image-every", min=1, help="Log images every N frames.")]
-JpegOpt = Annotated[Optional[int], typer.Option("--jpeg-quality", min=1, max=100, help="Store 8-bit images as JPEG at this quality (smaller, lossy; default: lossless). 16-bit images stay lossless.")]
+ExactEveryOpt = Annotated[int, typer.Option("--exact-every", min=0, help="Exact (lossless, source dtype) images on the first image frame of every N frames, JPEG previews between (1: every image exact; 0: previews only).")]
+JpegOpt = Annotated[int, typer.Option("--jpeg-quality", min=1, max=100, help="JPEG quality of the preview images.")]
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
 SpawnOpt = Annotated[bool, typer.Option("--spawn", help="Also stream the run live to a Rerun viewer (started, or the one already on --port).")]
 ConnectOpt = Annotated[Optional[str], typer.Option("--connect", help="Also stream the run live to a running viewer or server at this URL (rerun+http://HOST:PORT/proxy).", show_default=False)]
@@ -183,7 +185,7 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int): 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
-             jpeg_quality: int | None = None, inputs: tuple[tuple[Path | None, str], ...] = (),
+             jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY, inputs: tuple[tuple[Path | None, str], ...] = (),
              live=None) -> RunSummary:  # noqa: ANN001
     _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
     total = clip.n_frames
@@ -193,7 +195,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     if recording is not None:
         options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
                        trail_length=tracker.config.tracking.trail_length,
-                       jpeg_quality=jpeg_quality, live=live)
+                       jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
         if live is not None:
             err.print(f"wfviz: live: {live.describe()}", highlight=False, markup=False, soft_wrap=True)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -267,7 +269,8 @@ def record(
     fps: FpsOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
-    jpeg_quality: JpegOpt = None,
+    exact_every: ExactEveryOpt = EXACT_EVERY,
+    jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     truth: TruthOpt = None,
     gate: GateOpt = 3.0,
     skip_bad_frames: SkipBadOpt = False,
@@ -287,7 +290,8 @@ def record(
     tracks = tracks or output.with_suffix(".csv")
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
-                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, inputs=_inputs(truth, config),
+                       truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, exact_every=exact_every,
+                       inputs=_inputs(truth, config),
                        live=live)
     _report(summary, tracks, output)
 
@@ -326,7 +330,8 @@ def demo(
     config: ConfigOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
-    jpeg_quality: JpegOpt = None,
+    exact_every: ExactEveryOpt = EXACT_EVERY,
+    jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     spawn: SpawnOpt = False,
     connect: ConnectOpt = None,
     serve: ServeOpt = False,
@@ -355,7 +360,7 @@ def demo(
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
                        source=f"built-in demo (seed {seed}, {frames} frames)", truth=clip.truth_points(),
-                       jpeg_quality=jpeg_quality, live=live)
+                       jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
     out.print(f"  truth:     {truth}", highlight=False, markup=False)
     _report(summary, tracks, output)
 
@@ -603,6 +608,8 @@ def compare(
     fps: FpsOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
+    exact_every: ExactEveryOpt = EXACT_EVERY,
+    jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     gate: GateOpt = 3.0,
     skip_bad_frames: SkipBadOpt = False,
     nan_as_zero: NanOpt = False,
@@ -632,8 +639,8 @@ def compare(
                   console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
         summary = run_compare(source, runs, recording=output, tracks=csvs, truth=truth_points, gate=gate,
-                              image_every=0 if no_images else image_every, source=str(clip), start=start,
-                              stop=stop, on_frame=lambda n: progress.update(task, completed=n))
+                              image_every=0 if no_images else image_every, exact_every=exact_every,
+                              jpeg_quality=jpeg_quality, source=str(clip), start=start, stop=stop, on_frame=lambda n: progress.update(task, completed=n))
     state = (f"[yellow]interrupted by {signal.Signals(summary.signal).name}[/]" if summary.signal else "done")
     out.print(f"{state}: {len(runs)} runs over {summary.frames} frames in {summary.seconds:.2f} s"
               + (" (truth: the synthetic clip's own)" if own_truth else ""), highlight=False)

@@ -17,6 +17,7 @@ from wfviz.evaluate import EvalResult, Points
 from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip, read_ahead
 from wfviz.io.outputs import check_writable
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.run import StopSignals, min_frame_side
 from wfviz.sinks import RunEnd, ScoreSink, Step, TracksSink
 
@@ -51,6 +52,7 @@ class CompareSummary:
 
 def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: list[Path | None],
             truth: tuple[Points, Points] | None = None, gate: float = 3.0, image_every: int = 1,
+            exact_every: int = EXACT_EVERY, jpeg_quality: int = PREVIEW_QUALITY,
             source: str = "", start: int = 0, stop: int | None = None,
             on_frame: Callable[[int], None] | None = None) -> CompareSummary:
     """Run every ``runs`` tracker over frames ``start <= index < stop`` of ``clip``, writing
@@ -90,7 +92,8 @@ def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: 
                 from wfviz.record.compare import CompareRecorder
 
                 recorder = CompareRecorder(recording, runs, groups, source=source or name,
-                                           image_every=image_every, truth=truth is not None, gate=gate)
+                                           image_every=image_every, exact_every=exact_every,
+                                           jpeg_quality=jpeg_quality, truth=truth is not None, gate=gate)
             stream = read_ahead(clip.frames(start, stop))
             try:
                 for frame in stream:

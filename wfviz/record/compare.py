@@ -17,7 +17,9 @@ from wfviz.compare.runs import RunSpec
 from wfviz.evaluate import format_table, frame_errors
 from wfviz.io.frames import Frame
 from wfviz.record import recorder_class
-from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer, _times
+from wfviz.record.images import ImageLog
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
+from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer
 
 #: images a run sharing another run's front end leaves to it (the same arrays)
 SHARED_IMAGES = frozenset({"suppressed/image", "suppressed/noise"})
@@ -67,7 +69,8 @@ class CompareRecorder:
     """Writes one comparison recording (see the module docstring)."""
 
     def __init__(self, path: Path, runs: list[RunSpec], groups: list[int], *, source: str,
-                 image_every: int = 1, truth: bool = False, gate: float = 3.0) -> None:
+                 image_every: int = 1, exact_every: int = EXACT_EVERY, jpeg_quality: int = PREVIEW_QUALITY,
+                 truth: bool = False, gate: float = 3.0) -> None:
         from wfviz.io.outputs import temp_path
 
         self.path, self.temp = path, temp_path(path)
@@ -79,14 +82,15 @@ class CompareRecorder:
         except BaseException:
             self.temp.unlink(missing_ok=True)
             raise
-        self.image_every, self.gate = image_every, gate
+        self.images, self.gate = ImageLog(self.rec, image_every, exact_every, jpeg_quality), gate
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self.runs: list[Any] = []
         for i, (r, g) in enumerate(zip(runs, groups)):
             cls = recorder_class(r.tracker)
             self.runs.append(cls(None, source=f"{source} ({r.source})", tracker=r.tracker, config_text=r.config_text,
-                                 image_every=image_every, trail_length=r.config.tracking.trail_length,
+                                 image_every=image_every, exact_every=exact_every, jpeg_quality=jpeg_quality,
+                                 trail_length=r.config.tracking.trail_length,
                                  stream=self.rec, root=f"runs/{r.label}", raw_image=False,
                                  shared_images=SHARED_IMAGES if g != i else frozenset()))
         self.metrics = tuple(m for m, _ in METRICS if truth or m in ("tracks", "ms"))
@@ -101,15 +105,13 @@ class CompareRecorder:
 
     def log(self, frame: Frame, results: list[Any], cmp: FrameComparison, ms: list[float],
             shown: list | None, hidden: list | None) -> None:
-        """One frame: the raw image (every ``image_every``), every run's stages, the marks, the
+        """One frame: the raw image (see :class:`ImageLog`), every run's stages, the marks, the
         disagreements that began or ended, the metrics."""
         rec = self.rec
         rec.set_time("frame", sequence=frame.index)
         rec.set_time("time", duration=frame.time)
-        if self.image_every > 0 and self.frames_logged % self.image_every == 0:
-            image = rr.Image(frame.image)
-            rec.send_columns("camera/image", indexes=_times([frame.index], [frame.time]), columns=[
-                rr.ComponentColumn(b.component_descriptor(), b) for b in image.as_component_batches()])
+        if self.images.begin_frame(self.frames_logged, frame.index, frame.time):
+            self.images.log("camera/image", frame.image)
         for sub, result in zip(self.runs, results):
             sub.log(frame, result)
             if shown is not None:
@@ -164,6 +166,8 @@ class CompareRecorder:
     def _close(self) -> None:
         if not self._closed:
             self._closed = True
+            for log in (self.images, *(sub.images for sub in self.runs)):
+                log.close()  # every image sent (idempotent: the runs' close() did it after finish)
             self.columns.flush()
             self.rec.flush()
             self.rec.disconnect()

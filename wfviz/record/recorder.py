@@ -8,7 +8,6 @@ import warnings
 from collections import deque
 from pathlib import Path
 
-import cv2
 import numpy as np
 import pyarrow as pa
 import rerun as rr
@@ -17,6 +16,8 @@ import rerun.blueprint as rrb
 from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote
 from wfviz.io.frames import Frame
+from wfviz.record.images import ImageLog, time_columns
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.record.live import Live, sinks
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
@@ -187,16 +188,16 @@ class ColumnBuffer:
     def flush(self, bars: bool = True) -> None:
         """Send the scalars and lines held (and the bar charts, with ``bars``)."""
         for path, (f, t, v) in self._scalars.items():
-            self.rec.send_columns(path, indexes=_times(f, t), columns=rr.Scalars.columns(scalars=v))
+            self.rec.send_columns(path, indexes=time_columns(f, t), columns=rr.Scalars.columns(scalars=v))
         for path, (f, t, x, lv) in self._texts.items():
-            self.rec.send_columns(path, indexes=_times(f, t), columns=rr.TextLog.columns(text=x, level=lv))
+            self.rec.send_columns(path, indexes=time_columns(f, t), columns=rr.TextLog.columns(text=x, level=lv))
         self._scalars.clear()
         self._texts.clear()
         self._pending = 0
         if bars:
             for path, rows in self._bars.items():
                 n = rows.n
-                self.rec.send_columns(path, indexes=_times(rows.frames[:n], rows.times[:n]),
+                self.rec.send_columns(path, indexes=time_columns(rows.frames[:n], rows.times[:n]),
                                       columns=bar_chart_columns(rows.values[:n], np.tile(rows.color, (n, 1))))
             self._bars.clear()
             self._bar_pending = 0
@@ -220,10 +221,6 @@ class _BarRows:
             self.values = np.concatenate([self.values, np.zeros((grow, self.values.shape[1]))])
         self.frames[self.n], self.times[self.n], self.values[self.n] = frame, time, values
         self.n += 1
-
-
-def _times(frames: list[int], times: list[float]) -> list[rr.TimeColumn]:
-    return [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
 
 
 class RootedStream:
@@ -250,12 +247,14 @@ class RootedStream:
 class Recorder:
     """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
 
-    ``image_every`` logs the raw and stage images every N frames (0 = never); overlays,
-    scalars and text are logged every frame.
+    ``image_every`` logs the raw and stage images every N frames (0 = never), exact (lossless)
+    on the first image frame of every ``exact_every`` frames and JPEG previews at ``jpeg_quality``
+    between (:mod:`wfviz.record.images`); overlays, scalars and text are logged every frame.
     """
 
     def __init__(self, path: Path | None, *, source: str, tracker: str, config_text: str,
-                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int | None = None,
+                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int = PREVIEW_QUALITY,
+                 exact_every: int = EXACT_EVERY,
                  stream: rr.RecordingStream | None = None, root: str = "", raw_image: bool = True,
                  shared_images: frozenset[str] = frozenset(), live: Live | None = None) -> None:
         """``stream`` and ``root``: write into another recording, every entity below ``root``
@@ -272,9 +271,7 @@ class Recorder:
         self.raw_image = raw_image
         self.live = live
         self.shared_images = shared_images
-        self.image_every = image_every
-        self.jpeg_quality = jpeg_quality
-        self._jpeg_noted = False
+        self.images = ImageLog(self.rec, image_every, exact_every, jpeg_quality)
         self._noise_logged: object | None = None  # the noise estimate last logged as an image
         self._trails: dict[int, deque] = {}
         self._trail_length = trail_length
@@ -343,7 +340,7 @@ class Recorder:
         rec.set_time("frame", sequence=frame.index)
         rec.set_time("time", duration=frame.time)
         self._now = (frame.index, frame.time)
-        images = self.image_every > 0 and self.frames_logged % self.image_every == 0
+        images = self.images.begin_frame(self.frames_logged, frame.index, frame.time)
         if images and self.raw_image:
             self.image("camera/image", frame.image)
         self._log_common(result)
@@ -352,27 +349,11 @@ class Recorder:
         self.columns.end_frame()
 
     def image(self, path: str, image: np.ndarray, lossless: bool = False) -> None:
-        """An image, lossless; JPEG-encoded when ``jpeg_quality`` is set, it is 8-bit and not
-        ``lossless`` (a map of measured values, not a picture). Not logged when it is one of the
-        ``shared_images``.
-
-        Sent as its own chunk right away, past the batcher: megabytes of pixels would otherwise
-        fill the batch and flush every overlay entity with it, making many small chunks."""
-        if path in self.shared_images:
-            return
-        if self.jpeg_quality is not None and image.dtype != np.uint8 and not self._jpeg_noted and not lossless:
-            self._jpeg_noted = True
-            warnings.warn(f"--jpeg-quality applies to 8-bit images only; {image.dtype} images "
-                          "stay lossless", ClipNote, stacklevel=2)
-        if self.jpeg_quality is None or image.dtype != np.uint8 or lossless:
-            archetype: rr.AsComponents = rr.Image(image)
-        else:
-            ok, data = cv2.imencode(".jpg", image, [cv2.IMWRITE_JPEG_QUALITY, self.jpeg_quality])
-            if not ok:
-                raise ValueError(f"{path}: JPEG encoding failed")
-            archetype = rr.EncodedImage(contents=data.tobytes(), media_type="image/jpeg")
-        self.rec.send_columns(path, indexes=_times([self._now[0]], [self._now[1]]), columns=[
-            rr.ComponentColumn(b.component_descriptor(), b) for b in archetype.as_component_batches()])
+        """An image of the current frame, exact or a preview (:class:`ImageLog`); always exact
+        when ``lossless`` (a map of measured values, not a picture). Not logged when it is one
+        of the ``shared_images``."""
+        if path not in self.shared_images:
+            self.images.log(path, image, value_map=lossless)
 
     def scalar(self, path: str, value: float) -> None:
         """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`)."""
@@ -408,9 +389,11 @@ class Recorder:
         log_geometry(self.rec, result)
         noise = result.noise
         if noise is not None:
-            # with the images, when re-estimated (noise.every frames; the viewer shows the latest);
-            # half precision: a smooth map, and a quarter of the raw frame's bytes
-            if images and noise is not self._noise_logged:
+            # on exact frames (on image frames with previews only), when re-estimated since it was
+            # last logged (the viewer shows the latest); half precision: a smooth map. Every
+            # renewal (each noise.every frames) was half the demo's recording and a chunk each
+            due = self.images.exact if self.images.exact_every else images
+            if due and noise is not self._noise_logged:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), lossless=True)
                 self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
@@ -514,6 +497,7 @@ class Recorder:
     def close(self) -> None:
         """Send the final default blueprint (per-track views), flush and close the file (a
         recorder writing into another's ``stream`` only sends what it holds)."""
+        self.images.close()
         self.columns.flush()
         if not self._owner:
             return

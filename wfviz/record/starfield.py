@@ -52,7 +52,7 @@ class StarfieldRecorder(Recorder):
         rec = self.rec
         self._frame = result.index
         if images:
-            rec.log("suppressed/image", rr.Image(result.residual.astype(np.float16)))
+            self.image("suppressed/image", result.residual.astype(np.float16))
         s = result.stars
         stars = rr.Points2D(s.xy, radii=np.sqrt(s.area / np.pi) + 0.5,
                             colors=[STAR_COLOR if p else UNPAIRED_COLOR for p in result.paired])

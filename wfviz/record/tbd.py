@@ -51,7 +51,7 @@ class TBDRecorder(Recorder):
     def log_stages(self, result: TBDResult, images: bool) -> None:  # type: ignore[override]
         rec = self.rec
         if images:
-            rec.log("suppressed/image", rr.Image(result.normalised.astype(np.float16)))
+            self.image("suppressed/image", result.normalised.astype(np.float16))
         pts = result.particles
         hyp = pts[:, 2].astype(np.int64)
         colors = np.array(HYPOTHESIS_COLORS, dtype=np.uint8)[np.clip(hyp, 0, len(HYPOTHESIS_COLORS) - 1)]

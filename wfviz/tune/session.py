@@ -86,7 +86,7 @@ def record_trials(out: Path, trials: list[Any], settings: StudySettings, k: int)
             source = open_clip(clip.spec)
             tracker = make_tracker(settings.tracker, config)
             options = dict(source=clip.spec, config_text=config_to_toml(config), image_every=1,
-                           trail_length=config.tracking.trail_length, jpeg_quality=None)
+                           trail_length=config.tracking.trail_length)
             summary = run(source, tracker, recording=path, recorder_options=options, stop=settings.stop,
                           truth=read_truth(clip.truth), gate=settings.gate)
             written.append(path)
