@@ -209,8 +209,8 @@ def whole_processes(runs: int, clip: MemoryClip) -> list[str]:
                     mb = (tmp / "r.rrd").stat().st_size / 1e6 / n
             sec = float(np.median(times))
             ms = sec * 1e3 / n
+            over = "" if base is None else f"+{ms - base:.2f}"  # the first row is `track` itself
             base = ms if base is None else base
-            over = f"+{ms - base:.2f}" if ms is not base else ""
             rows.append(f"| {label} | {sec:.2f} | {ms:.2f} | {over} | {mb:.3f} |" if mb else
                         f"| {label} | {sec:.2f} | {ms:.2f} | {over} | |")
             print(rows[-1], flush=True)

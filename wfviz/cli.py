@@ -185,8 +185,8 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int): 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
-             jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY, inputs: tuple[tuple[Path | None, str], ...] = (),
-             live=None) -> RunSummary:  # noqa: ANN001
+             jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
+             inputs: tuple[tuple[Path | None, str], ...] = (), live=None) -> RunSummary:  # noqa: ANN001
     _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
     total = clip.n_frames
     if total is not None:
@@ -291,8 +291,7 @@ def record(
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
                        truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, exact_every=exact_every,
-                       inputs=_inputs(truth, config),
-                       live=live)
+                       inputs=_inputs(truth, config), live=live)
     _report(summary, tracks, output)
 
 
@@ -640,7 +639,8 @@ def compare(
         task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
         summary = run_compare(source, runs, recording=output, tracks=csvs, truth=truth_points, gate=gate,
                               image_every=0 if no_images else image_every, exact_every=exact_every,
-                              jpeg_quality=jpeg_quality, source=str(clip), start=start, stop=stop, on_frame=lambda n: progress.update(task, completed=n))
+                              jpeg_quality=jpeg_quality, source=str(clip), start=start, stop=stop,
+                              on_frame=lambda n: progress.update(task, completed=n))
     state = (f"[yellow]interrupted by {signal.Signals(summary.signal).name}[/]" if summary.signal else "done")
     out.print(f"{state}: {len(runs)} runs over {summary.frames} frames in {summary.seconds:.2f} s"
               + (" (truth: the synthetic clip's own)" if own_truth else ""), highlight=False)

@@ -18,8 +18,8 @@ from wfviz.evaluate import format_table, frame_errors
 from wfviz.io.frames import Frame
 from wfviz.record import recorder_class
 from wfviz.record.images import ImageLog
-from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 
 #: images a run sharing another run's front end leaves to it (the same arrays)
 SHARED_IMAGES = frozenset({"suppressed/image", "suppressed/noise"})

@@ -24,8 +24,6 @@ import rerun as rr
 
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 
-
-
 IMAGE_DRAW_ORDER = -10.0  # exact images and previews alike (a tie would be drawn in any order)
 MAP_DRAW_ORDER = -20.0  # value maps (the noise map) under the pictures
 
@@ -73,8 +71,8 @@ class ImageLog:
     file writer keeps about 8 KB per image chunk until it closes: a chunk per image grew a
     20 000-frame recording by over 200 MB); a live viewer therefore gets them in those batches.
     With ``threaded`` (default: when this process may use more than one CPU) the encoding and
-    sending run on a worker thread, at most ``QUEUE`` images behind; the images
-    must then not be modified after they are logged (the trackers make new arrays each frame).
+    sending run on a worker thread, at most ``QUEUE`` images behind; the images must then not
+    be modified after they are logged (the trackers make new arrays each frame).
     A worker's error is raised by the next :meth:`log` or by :meth:`close`."""
 
     QUEUE = 4
@@ -86,8 +84,7 @@ class ImageLog:
         if image_every < 0 or exact_every < 0 or not 1 <= quality <= 100:
             raise ValueError(f"image_every {image_every}, exact_every {exact_every}, quality {quality}")
         self.rec, self.image_every, self.exact_every, self.quality = rec, image_every, exact_every, quality
-        self.images = False  # whether the current frame carries images
-        self.exact = False  # ... and whether they are exact
+        self.exact = False  # whether the current frame's images are exact
         self._block = -1  # the exact_every block whose exact images were logged
         self._kind: dict[str, bool] = {}  # entity -> last logged exact (True) or preview (False)
         self._now = (0, 0.0)
@@ -104,11 +101,11 @@ class ImageLog:
     def begin_frame(self, n_logged: int, frame: int, time: float) -> bool:
         """Decide the ``n_logged``-th frame logged (``frame`` at ``time``); True if it carries images."""
         self._now = (frame, time)
-        self.images = self.image_every > 0 and n_logged % self.image_every == 0
+        images = self.image_every > 0 and n_logged % self.image_every == 0
         self.exact = False
-        if self.images and self.exact_every > 0 and n_logged // self.exact_every != self._block:
+        if images and self.exact_every > 0 and n_logged // self.exact_every != self._block:
             self.exact, self._block = True, n_logged // self.exact_every
-        return self.images
+        return images
 
     def log(self, path: str, image: np.ndarray, value_map: bool = False) -> None:
         """``image`` at ``path``: exact on exact frames, else a JPEG preview; a ``value_map`` (a
@@ -178,11 +175,12 @@ class ImageLog:
         for key in [only] if only is not None else list(self._pending):
             rows = self._pending.pop(key, None)
             if rows is not None and rows.frames:
-                self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=[
-                    rr.ComponentColumn(d, _Batch(pa.concat_arrays(a))) for d, a in zip(rows.descriptors, rows.arrays)])
+                columns = [rr.ComponentColumn(d, ArrowBatch(pa.concat_arrays(a)))
+                           for d, a in zip(rows.descriptors, rows.arrays)]
+                self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=columns)
 
 
-class _Batch:
+class ArrowBatch:
     """A ready Arrow array as a Rerun component batch."""
 
     def __init__(self, array: pa.Array) -> None:

@@ -16,9 +16,9 @@ import rerun.blueprint as rrb
 from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote
 from wfviz.io.frames import Frame
-from wfviz.record.images import ImageLog, time_columns
-from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
+from wfviz.record.images import ArrowBatch, ImageLog, time_columns
 from wfviz.record.live import Live, sinks
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
@@ -63,16 +63,6 @@ MASK_COLOR = (255, 0, 255, 70)
 BATCHER = rr.ChunkBatcherConfig(flush_tick=10.0, flush_num_bytes=16 * 1024 * 1024)
 
 
-class _Batch:
-    """A ready Arrow array as a Rerun component batch."""
-
-    def __init__(self, array: pa.Array) -> None:
-        self._array = array
-
-    def as_arrow_array(self) -> pa.Array:
-        return self._array
-
-
 @functools.lru_cache(maxsize=1)
 def _bar_chart_template() -> tuple:
     """Descriptors and Arrow types of ``rr.BarChart`` (values as F64 tensor, colour)."""
@@ -110,7 +100,7 @@ def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.Compone
     straight in Arrow (Rerun's own tensor converter takes ~0.3 ms a row and cannot batch)."""
     desc, color_desc = _bar_chart_template()[:2]
     tensor, rgba = bar_chart_arrays(values, colors)
-    return [rr.ComponentColumn(desc, _Batch(tensor)), rr.ComponentColumn(color_desc, _Batch(rgba))]
+    return [rr.ComponentColumn(desc, ArrowBatch(tensor)), rr.ComponentColumn(color_desc, ArrowBatch(rgba))]
 
 
 def log_geometry(rec: rr.RecordingStream, result: FrontEndTrackResult) -> None:
@@ -348,12 +338,12 @@ class Recorder:
         self.frames_logged += 1
         self.columns.end_frame()
 
-    def image(self, path: str, image: np.ndarray, lossless: bool = False) -> None:
+    def image(self, path: str, image: np.ndarray, value_map: bool = False) -> None:
         """An image of the current frame, exact or a preview (:class:`ImageLog`); always exact
-        when ``lossless`` (a map of measured values, not a picture). Not logged when it is one
+        when a ``value_map`` (a map of measured values, not a picture). Not logged when it is one
         of the ``shared_images``."""
         if path not in self.shared_images:
-            self.images.log(path, image, value_map=lossless)
+            self.images.log(path, image, value_map=value_map)
 
     def scalar(self, path: str, value: float) -> None:
         """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`)."""
@@ -394,7 +384,7 @@ class Recorder:
             # renewal (each noise.every frames) was half the demo's recording and a chunk each
             due = self.images.exact if self.images.exact_every else images
             if due and noise is not self._noise_logged:
-                self.image("suppressed/noise", noise.sigma.astype(np.float16), lossless=True)
+                self.image("suppressed/noise", noise.sigma.astype(np.float16), value_map=True)
                 self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
         camera = result.camera
