@@ -536,7 +536,11 @@ def tune(
 
     use_ray = ray is not None
     address = None if ray in (None, "", "local") else ray
-    n_workers = workers or (os.cpu_count() or 1)
+    from wfviz.tune.workers import worker_count
+
+    n_workers, note = worker_count(workers, trials, use_ray)
+    if note:
+        err.print(f"wfviz: note: {note}", highlight=False, markup=False, soft_wrap=True)
     settings = prepare(tracker, list(clips), list(validate or []), out_dir, search, base, objective=objective,
                        trials=trials, seed=seed, workers=n_workers, stop=stop, gate=gate,
                        use_ray=use_ray, ray_address=address, cache=not no_cache)
@@ -556,10 +560,10 @@ def tune(
             progress.update(task, description=name)
 
         result = run_tune(settings, out_dir, record_best=record_best, folds=folds, on_batch=on_batch,
-                          on_stage=on_stage)
+                          on_stage=on_stage, inputs=((config, "the --config file"), (space, "the --space file")))
     _tune_summary(result, metric)
-    if result.state.interrupted:
-        raise typer.Exit(128 + signal.SIGINT)
+    if result.signal is not None:
+        raise typer.Exit(128 + result.signal)
 
 
 def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
@@ -568,7 +572,8 @@ def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
     state, settings = result.state, result.settings
     done = [t for t in state.trials if t.values is not None]
     failed = len(state.trials) - len(done)
-    how = "[yellow]interrupted[/]" if state.interrupted else "done"
+    how = (f"[yellow]interrupted by {signal.Signals(result.signal).name}[/]" if result.signal is not None
+           else "done")
     out.print(f"{how}: {len(state.trials)} trials ({len(done)} scored, {failed} failed; {state.ran} this run)",
               highlight=False)
     for note in state.notes:
@@ -590,7 +595,9 @@ def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
             out.print(f"  {f.name:<12} {f}", highlight=False, markup=False)
     recs = [f for f in result.files if f.parent.name == "recordings"]
     if recs:
-        out.print(f"  recordings: {len(recs)} in {recs[0].parent}", highlight=False, markup=False)
+        cut = (f" (stopped: {recs[-1].name} holds the frames done, the rest were not recorded)"
+               if result.signal is not None and not state.interrupted else "")
+        out.print(f"  recordings: {len(recs)} in {recs[0].parent}{cut}", highlight=False, markup=False)
 
 
 @app.command()
@@ -630,7 +637,8 @@ def compare(
     output = output or Path("recordings") / f"{source.name}-compare.rrd"
     csvs = [output.with_name(f"{output.stem}-{r.label}.csv") for r in runs]
     configs = tuple((Path(s.split(":", 1)[1]), "a --run config file") for s in run_specs or [] if ":" in s)
-    _guard_outputs(output, *csvs, clip=source, inputs=((truth, "the truth file"), *configs))
+    studied = tuple((f, f"a file of the study {study}") for f in (study.rglob("*") if study else ()) if f.is_file())
+    _guard_outputs(output, *csvs, clip=source, inputs=((truth, "the truth file"), *configs, *studied))
     total = source.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)

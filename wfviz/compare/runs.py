@@ -58,34 +58,30 @@ def parse_run(spec: str) -> RunSpec:
 def study_runs(folder: Path, top: int) -> list[RunSpec]:
     """The ``top`` best trials of the ``wfviz tune`` study in ``folder`` (labels ``trial-N``,
     ranked as its report ranks them) and the tracker's defaults (``defaults``)."""
-    from wfviz.config import config_from_dict
+    from wfviz.config import ConfigError, config_from_dict
     from wfviz.tune.outputs import ranked
     from wfviz.tune.space import make_config
-    from wfviz.tune.study import JOURNAL, STUDY_NAME, _optuna
+    from wfviz.tune.study import JOURNAL, load_journal
 
     journal = folder / JOURNAL
     if not journal.is_file():
         raise ValueError(f"--study {folder}: no {JOURNAL} (not a wfviz tune study folder)")
-    optuna = _optuna()
-    from optuna.storages import JournalStorage
-    from optuna.storages.journal import JournalFileBackend
-
+    study = load_journal(journal)
     try:
-        study = optuna.load_study(study_name=STUDY_NAME, storage=JournalStorage(JournalFileBackend(str(journal))))
-    except KeyError:
-        raise ValueError(f"--study {folder}: {journal} holds no wfviz study") from None
-    settings = study.user_attrs.get("settings") or {}
-    tracker = settings.get("tracker")
-    if tracker not in TRACKERS:
-        raise ValueError(f"--study {folder}: the study's tracker '{tracker}' is not available")
-    cls = config_class(tracker)
-    base = config_from_dict(settings["base"], cls)
-    trials = [t for t in study.get_trials(deepcopy=False) if t.state.name == "COMPLETE"]
-    best = ranked(trials, settings.get("objective", "mota"))[:top]
+        settings = study.user_attrs.get("settings") or {}
+        tracker = settings.get("tracker")
+        if tracker not in TRACKERS:
+            raise ValueError(f"{journal}: the study's tracker '{tracker}' is not available")
+        cls = config_class(tracker)
+        base = config_from_dict(settings["base"], cls)
+        trials = [t for t in study.get_trials(deepcopy=False) if t.state.name == "COMPLETE"]
+        best = ranked(trials, settings.get("objective", "mota"))[:top]
+        runs = [RunSpec(f"trial-{t.number}", tracker, make_config(cls, dict(t.params), settings.get("fixed"), base),
+                        f"{folder} trial {t.number}") for t in best]
+    except (KeyError, TypeError, AttributeError, ConfigError) as exc:  # a journal edited by hand
+        raise ValueError(f"{journal}: not a study wfviz can read ({type(exc).__name__}: {exc})") from None
     if not best:
         raise ValueError(f"--study {folder}: no finished trial yet")
-    runs = [RunSpec(f"trial-{t.number}", tracker, make_config(cls, dict(t.params), settings.get("fixed"), base),
-                    f"{folder} trial {t.number}") for t in best]
     return runs + [RunSpec("defaults", tracker, cls(), "defaults")]
 
 

@@ -51,10 +51,11 @@ def split_spec(arg: str) -> tuple[str, str | None]:
     return clip, truth or None
 
 
-def study_clips(tune: list[str], validate: list[str], truth_dir: Path, stop: int | None) -> list[StudyClip]:
+def study_clips(tune: list[str], validate: list[str], truth_dir: Path) -> list[StudyClip]:
     """Open every clip once (errors name the clip) and resolve its truth; a ``synth:`` clip's
-    truth is written to ``truth_dir/<label>.csv`` (frames before ``stop``), so that ``wfviz
-    eval`` can score a reproduction against the same file."""
+    truth is to be written to ``truth_dir/<label>.csv`` (:func:`synth_truth`, once the
+    study is accepted), so that ``wfviz eval`` can score a reproduction against the same file.
+    Nothing is written here."""
     out: list[StudyClip] = []
     seen: dict[str, int] = {}
     specs = [(a, "tune") for a in tune] + [(a, "validate") for a in validate]
@@ -71,8 +72,6 @@ def study_clips(tune: list[str], validate: list[str], truth_dir: Path, stop: int
         truth = find_truth(spec, truth_arg)
         if truth is None:
             truth = truth_dir / f"{label}.csv"
-            truth_dir.mkdir(parents=True, exist_ok=True)
-            _write_truth(clip, truth, stop)
         elif not truth.is_file():
             raise ValueError(f"{truth}: no such truth file (for clip {spec})")
         else:
@@ -85,11 +84,25 @@ def study_clips(tune: list[str], validate: list[str], truth_dir: Path, stop: int
     return out
 
 
-def _write_truth(clip, path: Path, stop: int | None) -> None:  # noqa: ANN001
-    from wfviz.io.outputs import write_atomically
-
+def synth_truth(spec: str, stop: int | None) -> str:
+    """The truth CSV text of the ``synth:`` clip ``spec`` (frames before ``stop``)."""
     rows = ["frame,target_id,x,y,visible"]
-    for r in clip.truth():
+    for r in open_clip(spec).truth():
         if stop is None or r.frame < stop:
             rows.append(f"{r.frame},{r.target_id},{r.x!r},{r.y!r},{r.visible}")
-    write_atomically(path, "\n".join(rows) + "\n")
+    return "\n".join(rows) + "\n"
+
+
+def user_inputs(clips: tuple[StudyClip, ...]) -> tuple[list[tuple[Path, str]], list[tuple[Path, str]]]:
+    """The files (videos, stacks, truth) and image folders the study's clips read, each with
+    what it is (``synth:`` clips and the truth the study writes for them are not the user's)."""
+    files: list[tuple[Path, str]] = []
+    folders: list[tuple[Path, str]] = []
+    for c in clips:
+        if c.spec.startswith(SYNTH_PREFIX):
+            continue
+        what = "the tune clip" if c.role == "tune" else "the validation clip"
+        p = Path(c.spec)
+        (folders if p.is_dir() else files).append((p, what))
+        files.append((c.truth, f"the truth of {c.spec}"))
+    return files, folders

@@ -9,7 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from wfviz.io.outputs import write_atomically
+from wfviz.tune.folder import StudyFolder
 from wfviz.tune.space import best_toml, make_config
 from wfviz.tune.study import StudySettings
 from wfviz.tune.trial import METRICS
@@ -103,27 +103,28 @@ def _header(settings: StudySettings, trial: Any, toml: Path) -> str:
     return "\n".join(lines)
 
 
-def write_outputs(out: Path, trials: list[Any], settings: StudySettings) -> list[Path]:
-    """Write ``trials.csv`` and the best configuration(s); returns the files written."""
-    written = [out / "trials.csv"]
-    write_atomically(written[0], trials_csv(trials, settings))
+def write_outputs(folder: StudyFolder, trials: list[Any], settings: StudySettings) -> list[Path]:
+    """Write ``trials.csv`` and the best configuration(s); returns the files written. A Pareto
+    point no longer on the front loses its ``best-N.toml`` (only files the study wrote go)."""
+    out = folder.path
+    written = [folder.write(out / "trials.csv", trials_csv(trials, settings))]
     best = ranked(trials, settings.objective)
     if not best:
         return written
     if settings.objective != "pareto":
         path = out / "best.toml"
-        write_atomically(path, best_toml(trial_config(settings, best[0]), _header(settings, best[0], path)))
+        folder.write(path, best_toml(trial_config(settings, best[0]), _header(settings, best[0], path)))
         return written + [path]
     front = pareto_front(trials)
     ids = {t.number for t in front}
     rows = ["trial,pd,fa,config"]
     for t in (t for t in best if t.number in ids):
         path = out / f"best-{t.number}.toml"
-        write_atomically(path, best_toml(trial_config(settings, t), _header(settings, t, path)))
+        folder.write(path, best_toml(trial_config(settings, t), _header(settings, t, path)))
         rows.append(f"{t.number},{t.values[0]!r},{t.values[1]!r},{path.name}")
         written.append(path)
-    for stale in out.glob("best-*.toml"):  # points an earlier run had on the front
+    for stale in folder.owned("best-*.toml"):  # points an earlier batch had on the front
         if stale not in written:
-            stale.unlink(missing_ok=True)
-    write_atomically(out / "pareto.csv", "\n".join(rows) + "\n")
+            folder.remove(stale)
+    folder.write(out / "pareto.csv", "\n".join(rows) + "\n")
     return written + [out / "pareto.csv"]

@@ -8,7 +8,7 @@ import math
 from pathlib import Path
 from typing import Any
 
-from wfviz.io.outputs import write_atomically
+from wfviz.tune.folder import StudyFolder
 from wfviz.tune.outputs import pareto_front, pd_fa, ranked
 from wfviz.tune.study import OBJECTIVES, StudySettings
 from wfviz.tune.trial import METRICS, mean_scores
@@ -48,7 +48,7 @@ def folds_table(trials: list[Any], settings: StudySettings, k: int) -> tuple[lis
     return lines, mean(ins), mean(outs)
 
 
-def _plots(out: Path, trials: list[Any], settings: StudySettings, importance: dict[str, float]) -> list[Path]:
+def _plots(folder: StudyFolder, trials: list[Any], settings: StudySettings, importance: dict[str, float]) -> list[Path]:
     import matplotlib
 
     matplotlib.use("Agg")
@@ -77,8 +77,8 @@ def _plots(out: Path, trials: list[Any], settings: StudySettings, importance: di
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
     fig.tight_layout()
-    files.append(out / "history.png")
-    _save(fig, files[-1])
+    files.append(folder.path / "history.png")
+    _save(fig, files[-1], folder)
     if settings.objective == "pareto":
         fig, ax = plt.subplots(figsize=(5.5, 4))
         ax.plot([pd_fa(t)[1] for t in done], [pd_fa(t)[0] for t in done], "o", ms=4, alpha=0.5, label="trials")
@@ -91,16 +91,16 @@ def _plots(out: Path, trials: list[Any], settings: StudySettings, importance: di
         ax.grid(alpha=0.3)
         ax.legend(fontsize=8)
         fig.tight_layout()
-        files.append(out / "pareto.png")
-        _save(fig, files[-1])
+        files.append(folder.path / "pareto.png")
+        _save(fig, files[-1], folder)
     if importance:
         fig, ax = plt.subplots(figsize=(6, 0.4 * len(importance) + 1.2))
         names = list(importance)[::-1]
         ax.barh(names, [importance[k] for k in names])
         ax.set_xlabel(f"importance for {metrics[0]} (PED-ANOVA)")
         fig.tight_layout()
-        files.append(out / "importance.png")
-        _save(fig, files[-1])
+        files.append(folder.path / "importance.png")
+        _save(fig, files[-1], folder)
     if has_val:
         fig, axes = plt.subplots(1, len(metrics), figsize=(4.5 * len(metrics), 4), squeeze=False)
         for ax, m in zip(axes[0], metrics):
@@ -115,17 +115,17 @@ def _plots(out: Path, trials: list[Any], settings: StudySettings, importance: di
             ax.set_ylabel(f"{m}, validation clips")
             ax.grid(alpha=0.3)
         fig.tight_layout()
-        files.append(out / "tune_vs_validation.png")
-        _save(fig, files[-1])
+        files.append(folder.path / "tune_vs_validation.png")
+        _save(fig, files[-1], folder)
     return files
 
 
-def _save(fig: Any, path: Path) -> None:
+def _save(fig: Any, path: Path, folder: StudyFolder) -> None:
     import matplotlib.pyplot as plt
 
     from wfviz.io.outputs import temp_path, replace_into
 
-    tmp = temp_path(path)
+    tmp = temp_path(folder.claim(path))
     try:
         fig.savefig(tmp, dpi=110, format="png")
         replace_into(tmp, path)
@@ -159,7 +159,7 @@ def _importance(trials: list[Any], settings: StudySettings) -> dict[str, float]:
         return {}
 
 
-def write_report(out: Path, trials: list[Any], settings: StudySettings, folds: int = 0) -> list[Path]:
+def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings, folds: int = 0) -> list[Path]:
     """Write ``report.md`` and its plots; returns the files."""
     metrics, directions = OBJECTIVES[settings.objective]
     done = [t for t in trials if t.values is not None]
@@ -167,7 +167,7 @@ def write_report(out: Path, trials: list[Any], settings: StudySettings, folds: i
     tune_clips = [c.label for c in settings.clips if c.role == "tune"]
     val_clips = [c.label for c in settings.clips if c.role == "validate"]
     importance = _importance(trials, settings)
-    plots = _plots(out, trials, settings, importance)
+    plots = _plots(folder, trials, settings, importance)
     md = [f"# Tuning study: tracker `{settings.tracker}`, objective `{settings.objective}`", "",
           f"- tune clips: {', '.join(tune_clips)}",
           f"- validation clips: {', '.join(val_clips) if val_clips else 'none'}"
@@ -233,6 +233,4 @@ def write_report(out: Path, trials: list[Any], settings: StudySettings, folds: i
                    else "`best.toml`: the best trial's whole configuration, for `--config`"),
            "- `study.rrd`: the study in Rerun (`rerun study.rrd`: a `trial` timeline)",
            "- `study.journal`: the Optuna journal; the same command resumes the study", ""]
-    path = out / "report.md"
-    write_atomically(path, "\n".join(md))
-    return [path, *plots]
+    return [folder.write(folder.path / "report.md", "\n".join(md)), *plots]

@@ -15,6 +15,7 @@ from __future__ import annotations
 
 import json
 import math
+import signal
 from collections.abc import Callable
 from dataclasses import dataclass, field
 from pathlib import Path
@@ -23,6 +24,7 @@ from typing import Any
 from wfviz.config import ConfigError
 from wfviz.run import StopSignals
 from wfviz.tune.clips import StudyClip
+from wfviz.tune.folder import JOURNAL
 from wfviz.tune.space import Param, SearchSpace, config_dict, make_config
 from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores
 from wfviz.tune.workers import make_pool
@@ -36,7 +38,6 @@ OBJECTIVES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
 STUDY_NAME = "wfviz-tune"
 TPE_STARTUP = 8      # random trials before TPE models the history (Optuna's default is 10)
 NSGA_POPULATION = 8  # NSGA-II generation size (small: a study of a few dozen trials still evolves)
-JOURNAL = "study.journal"
 
 
 @dataclass(frozen=True)
@@ -77,6 +78,7 @@ class StudyState:
     interrupted: bool = False
     ran: int = 0
     notes: list[str] = field(default_factory=list)
+    signal: int | None = None  # SIGINT or SIGTERM that stopped the run
 
 
 def _optuna():  # noqa: ANN202
@@ -87,33 +89,57 @@ def _optuna():  # noqa: ANN202
 
 
 def open_study(out: Path, settings: StudySettings):  # noqa: ANN201
-    """The study in ``out`` (created, or loaded when its journal exists and its settings match)."""
+    """The study in ``out`` (created, or loaded when its journal exists and its settings match:
+    otherwise refused, the journal unchanged)."""
     optuna = _optuna()
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
     journal = out / JOURNAL
-    exists = journal.is_file()
-    storage = JournalStorage(JournalFileBackend(str(journal)))
-    _, directions = OBJECTIVES[settings.objective]
-    if exists:
-        try:
-            study = optuna.load_study(study_name=STUDY_NAME, storage=storage)
-        except KeyError:
-            raise ValueError(f"{journal}: holds no wfviz study; use another --out") from None
+    if journal.is_file():
+        study = load_journal(journal)
         stored = study.user_attrs.get("settings")
         now = json.loads(json.dumps(settings.fingerprint()))
         if stored != now:
             diff = sorted(k for k in now if stored is None or stored.get(k) != now.get(k))
             raise ValueError(f"{out}: holds a study with other settings ({', '.join(diff)} differ); "
                              "resume it with the same command, or use another --out")
+        _enqueue_base(study, settings)  # again, if a stopped run cut it short
         return study
-    study = optuna.create_study(study_name=STUDY_NAME, storage=storage, directions=list(directions))
+    storage = JournalStorage(JournalFileBackend(str(journal)))
+    study = optuna.create_study(study_name=STUDY_NAME, storage=storage,
+                                directions=list(OBJECTIVES[settings.objective][1]))
     study.set_user_attr("settings", json.loads(json.dumps(settings.fingerprint())))
+    _enqueue_base(study, settings)
+    return study
+
+
+def load_journal(journal: Path) -> Any:
+    """The wfviz study in the journal file ``journal`` (errors name the file and the problem)."""
+    optuna = _optuna()
+    from optuna.storages import JournalStorage
+    from optuna.storages.journal import JournalFileBackend
+
+    try:
+        storage = JournalStorage(JournalFileBackend(str(journal)))
+        return optuna.load_study(study_name=STUDY_NAME, storage=storage)
+    except KeyError:
+        raise ValueError(f"{journal}: holds no wfviz study; use another --out") from None
+    except Exception as exc:  # a truncated, replaced or foreign file: JSON, Optuna or OS errors
+        what = " ".join(str(exc).split()) or type(exc).__name__
+        raise ValueError(f"{journal}: not a readable study journal ({what})") from None
+
+
+def _enqueue_base(study: Any, settings: StudySettings) -> None:
+    """Queue trial 0, the base configuration as it is, unless it ran or waits already."""
+    from optuna.trial import TrialState
+
+    if any(t.user_attrs.get("base") for t in finished(study)
+           + study.get_trials(deepcopy=False, states=(TrialState.WAITING,))):
+        return
     start = {p.name: _base_value(settings.base, p) for p in settings.space.params}
     if all(_inside(p, v) for p, v in zip(settings.space.params, start.values())):
         study.enqueue_trial(start, user_attrs={"base": True})
-    return study
 
 
 def _base_value(base: Any, p: Param) -> Any:
@@ -127,11 +153,12 @@ def _inside(p: Param, v: Any) -> bool:
     return v is not None and p.low <= v <= p.high
 
 
-def _sampler(settings: StudySettings, number: int):  # noqa: ANN202
-    """The sampler of trial ``number``: seeded from the study's seed and the number, its other
-    settings fixed, so that what it proposes depends on the finished trials only."""
+def _sampler(settings: StudySettings, position: int):  # noqa: ANN202
+    """The sampler of the study's ``position``-th finished trial: seeded from the study's seed
+    and the position (not the trial number, which trials cut short by a stopped run use up), its
+    other settings fixed, so that what it proposes depends on the finished trials only."""
     optuna = _optuna()
-    seed = (settings.seed * 1_000_003 + number) % 2**32
+    seed = (settings.seed * 1_000_003 + position) % 2**32
     if settings.objective == "pareto":
         return optuna.samplers.NSGAIISampler(seed=seed, population_size=NSGA_POPULATION)
     return optuna.samplers.TPESampler(seed=seed, n_startup_trials=TPE_STARTUP)
@@ -169,15 +196,14 @@ def _close_stale(study: Any) -> int:
     return len(stale)
 
 
-def run_study(settings: StudySettings, out: Path,
+def run_study(settings: StudySettings, study: Any, work: Path,
               on_batch: Callable[[StudyState], None] | None = None) -> StudyState:
-    """Run trials until the study in ``out`` has ``settings.trials`` finished ones (a failed
-    trial counts), calling ``on_batch`` after each batch (outputs, progress). Ctrl-C ends the
-    running trials (recorded as failed, "interrupted") and keeps every finished one."""
+    """Run trials until ``study`` (:func:`open_study`) has ``settings.trials`` finished ones (a
+    failed trial counts), the trials' tracks CSVs in ``work``, calling ``on_batch`` after each
+    batch (outputs, progress). Ctrl-C or SIGTERM ends the running trials (recorded as failed,
+    "interrupted") and keeps every finished one."""
     from optuna.trial import TrialState
 
-    out.mkdir(parents=True, exist_ok=True)
-    study = open_study(out, settings)
     metrics = OBJECTIVES[settings.objective][0]
     state = StudyState(finished(study))
     stale = _close_stale(study)
@@ -188,7 +214,8 @@ def run_study(settings: StudySettings, out: Path,
     from wfviz.trackers import config_class
 
     cls = config_class(settings.tracker)
-    pool = make_pool(settings.workers, settings.ray_address, settings.use_ray)
+    remaining = max(1, settings.trials - len(finished(study)))
+    pool = make_pool(min(settings.workers, remaining), settings.ray_address, settings.use_ray)
     cut = False  # a trial was cut short (in this process, its own run caught the signal)
     try:
         with StopSignals() as signals:
@@ -196,11 +223,11 @@ def run_study(settings: StudySettings, out: Path,
                 return cut or signals.signum is not None
 
             while len(finished(study)) < settings.trials and not stop():
-                batch = min(settings.workers, settings.trials - len(finished(study)))
+                done = len(finished(study))
+                batch = min(settings.workers, settings.trials - done)
                 asked, tasks = [], []
-                for _ in range(batch):
-                    number = len(study.get_trials(deepcopy=False))
-                    study.sampler = _sampler(settings, number)
+                for i in range(batch):
+                    study.sampler = _sampler(settings, done + i)
                     trial = study.ask()
                     params = {p.name: _suggest(trial, p) for p in settings.space.params}
                     try:
@@ -213,7 +240,7 @@ def run_study(settings: StudySettings, out: Path,
                     asked.append(trial)
                     tasks.append(TrialTask(trial.number, settings.tracker, config_dict(config),
                                            settings.clips, settings.stop, settings.gate,
-                                           str(out / "work"), settings.cache))
+                                           str(work), settings.cache))
                 outcomes = pool.run(tasks, stop) if tasks else []
                 for trial, outcome in zip(asked, outcomes):
                     _tell(study, trial, outcome, metrics, tune_labels, valid_labels)
@@ -223,6 +250,9 @@ def run_study(settings: StudySettings, out: Path,
                 if on_batch is not None:
                     on_batch(state)
             state.interrupted = stop() and len(finished(study)) < settings.trials
+            state.signal = signals.signum if state.interrupted else None
+            if state.interrupted and state.signal is None:
+                state.signal = signal.SIGINT  # a trial run in this process caught it
     finally:
         pool.close()
     state.trials = finished(study)

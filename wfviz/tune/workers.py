@@ -5,6 +5,7 @@ in the batch's order, so a study gives the same trials whichever runs it."""
 from __future__ import annotations
 
 import multiprocessing
+import os
 import signal
 import time
 from collections.abc import Callable
@@ -148,6 +149,19 @@ class RayPool:
 
     def close(self) -> None:
         pass
+
+
+def worker_count(asked: int | None, trials: int, use_ray: bool) -> tuple[int, str | None]:
+    """Trials run at a time for ``--workers`` ``asked`` (None: this machine's cores): at most
+    ``trials``, and locally at most the cores (more processes only share them, and cost memory).
+    Returns the count and a note when it is less than asked."""
+    cores = os.cpu_count() or 1
+    n = min(asked or cores, trials) if use_ray else min(asked or cores, trials, cores)
+    note = None
+    if asked is not None and n < asked:
+        why = "--trials" if n == trials else "this machine's cores"
+        note = f"--workers {asked}: {n} at a time (at most {why}: {n})"
+    return n, note
 
 
 def make_pool(workers: int, ray_address: str | None, use_ray: bool) -> Inline | LocalPool | RayPool:
