@@ -339,7 +339,10 @@ def demo(
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.synth.demo import demo_clip
+    from wfviz.synth.folder import check_folder
 
+    if save_clip is not None:
+        check_folder(save_clip)  # before writing anything: a user's folder is refused
     live = _live(spawn, connect, serve, bind, port)
     trk = _tracker("gewc", config)
     clip = demo_clip(seed=seed, n_frames=frames)
@@ -376,6 +379,7 @@ def synth(
     list_: Annotated[bool, typer.Option("--list", help="Describe every scenario and exit.")] = False,
 ) -> None:
     """Write a synthetic wide-field scenario with exact truth."""
+    from wfviz.synth.folder import check_folder
     from wfviz.synth.scenarios import list_scenarios, make_scenario, write_scenario
 
     if list_ or scenario is None:
@@ -385,8 +389,7 @@ def synth(
         return
     if out_dir is None:
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: is a file, expected a folder to write the scenario into")
+    check_folder(out_dir, "the scenario")  # before rendering anything: a user's folder is refused
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
