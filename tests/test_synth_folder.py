@@ -122,3 +122,14 @@ def test_demo_save_clip_rewrites_its_own_folder(tmp_path: Path) -> None:
     with pytest.raises(OSError, match="not empty"):
         clip.save(tmp_path / "c2")
     assert [p.name for p in (tmp_path / "c2").iterdir()] == ["x.txt"]
+
+
+def test_synth_into_the_current_empty_folder(tmp_path: Path) -> None:
+    here = tmp_path / "here"
+    here.mkdir()
+    for frames in ("3", "2"):
+        r = wfviz("synth", "lowsnr-tbd", ".", "--frames", frames, cwd=here)
+        assert r.returncode == 0, r.stderr
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["here"]
+    assert sorted(p.name for p in here.iterdir()) == [MANIFEST, "frame_000000.png", "frame_000001.png",
+                                                      "meta.json", "truth.csv"]

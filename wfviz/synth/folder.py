@@ -79,12 +79,13 @@ def write_folder(folder: Path, fill: Callable[[Path], None], *, by: str, what: s
     the manifest). Returns ``folder``."""
     folder = Path(folder)
     check_folder(folder, what)
+    place = Path(os.path.abspath(folder))  # "." too: the temporary folder goes beside it, not in it
     try:
-        folder.parent.mkdir(parents=True, exist_ok=True)
+        place.parent.mkdir(parents=True, exist_ok=True)
     except OSError as exc:
         raise OutputError(f"{folder.parent}: cannot create the folder ({exc.strerror or exc})") from None
-    remove_stale(folder.parent)
-    tmp = temp_dir(folder)
+    remove_stale(place.parent)
+    tmp = temp_dir(place)
     try:
         fill(tmp)
         new = {p.name for p in tmp.iterdir()}
