@@ -41,6 +41,8 @@ def test_every_help_text_is_shown_whole(name: str | None) -> None:
     """Each option's and argument's help appears as written (bracketed parts included: Rich
     markup would eat ``[ray]``), the escape ``\\[`` shown as ``[``."""
     shown = _flat(help_of(*([name] if name else [])))
+    cmd = COMMAND if name is None else COMMAND.commands[name]  # type: ignore[attr-defined]
+    assert _flat(cmd.help.replace("\\[", "[")) in shown
     for param in _params(name):
         text = getattr(param, "help", None)
         if text:
