@@ -25,6 +25,28 @@ from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
+def _flags_take_no_value() -> None:
+    """Show no value for a flag in ``--help``. Typer's rich help (0.2x) prints a flag's type as if
+    it took one (``--debug <bool>``), so ``wfviz --debug true config`` looked right and failed
+    ('No such command true'); its plain help prints none. Options that take a value unchanged."""
+    from typer.core import TyperOption
+
+    shown = getattr(TyperOption, "display_type_rich", None)
+    if shown is None or getattr(shown, "wfviz_flags", False):  # older typer: no type shown
+        return
+
+    def display_type_rich(self, ctx):  # noqa: ANN001, ANN202
+        if getattr(self, "is_flag", False) and not getattr(self, "count", False):
+            return None
+        return shown(self, ctx)
+
+    display_type_rich.wfviz_flags = True  # type: ignore[attr-defined]
+    TyperOption.display_type_rich = display_type_rich  # type: ignore[method-assign]
+
+
+_flags_take_no_value()
+
+
 class _OneLineErrors(TyperGroup):
     """Usage errors (a bad option value, an unknown option) as one line naming the option and
     what it accepts, exit 2, instead of the usage box."""
@@ -260,8 +282,8 @@ def _main(debug: Annotated[bool, typer.Option("--debug", help="Show tracebacks o
 @_guarded
 def record(
     clip: ClipArg,
-    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd).")] = None,
-    tracks: Annotated[Optional[Path], typer.Option("--tracks", help="Tracks CSV (default: beside the recording).")] = None,
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd; default recordings/<clip>-<tracker>.rrd).")] = None,
+    tracks: Annotated[Optional[Path], typer.Option("--tracks", help="Tracks CSV (default: beside the recording, <stem>.csv).")] = None,
     tracker: TrackerOpt = "gewc",
     config: ConfigOpt = None,
     start: StartOpt = 0,
@@ -305,9 +327,9 @@ def track(
     start: StartOpt = 0,
     stop: StopOpt = None,
     fps: FpsOpt = None,
-    truth: TruthOpt = None,
+    truth: Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the tracks against it (the table is printed).")] = None,
     gate: GateOpt = 3.0,
-    skip_bad_frames: SkipBadOpt = False,
+    skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, counted in the closing summary) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
@@ -322,10 +344,11 @@ def track(
 @app.command()
 @_guarded
 def demo(
-    output: Annotated[Path, typer.Option("-o", "--output", help="Recording (.rrd).")] = Path("recordings/demo-gewc.rrd"),
+    output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd; default recordings/demo-<tracker>.rrd); the tracks CSV (<stem>.csv) and the truth CSV (<stem>-truth.csv) go beside it.")] = None,
     frames: Annotated[int, typer.Option("--frames", min=1, help="Clip length.")] = 160,
     seed: Annotated[int, typer.Option("--seed", help="Noise seed.")] = 0,
-    save_clip: Annotated[Optional[Path], typer.Option("--save-clip", help="Also write the clip as 16-bit PNGs + truth.csv here.")] = None,
+    save_clip: Annotated[Optional[Path], typer.Option("--save-clip", help="Also write the clip as 16-bit PNGs + truth.csv into this folder: a new or empty one, or one wfviz wrote before (only its own files are replaced).")] = None,
+    tracker: TrackerOpt = "gewc",
     config: ConfigOpt = None,
     image_every: ImageEveryOpt = 1,
     no_images: NoImagesOpt = False,
@@ -339,9 +362,13 @@ def demo(
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.synth.demo import demo_clip
+    from wfviz.synth.folder import check_folder
 
+    if save_clip is not None:
+        check_folder(save_clip)  # before writing anything: a user's folder is refused
     live = _live(spawn, connect, serve, bind, port)
-    trk = _tracker("gewc", config)
+    trk = _tracker(tracker, config)
+    output = output or Path("recordings") / f"demo-{tracker}.rrd"
     clip = demo_clip(seed=seed, n_frames=frames)
     tracks = output.with_suffix(".csv")
     truth = output.with_name(output.stem + "-truth.csv")
@@ -368,7 +395,7 @@ def demo(
 @_guarded
 def synth(
     scenario: Annotated[Optional[str], typer.Argument(help="Scenario name (see --list).")] = None,
-    out_dir: Annotated[Optional[Path], typer.Argument(help="Folder to write (16-bit PNGs, truth.csv, meta.json).")] = None,
+    out_dir: Annotated[Optional[Path], typer.Argument(help="Folder to write (16-bit PNGs, truth.csv, meta.json): a new or empty one, or one synth wrote before (only its own files are replaced; any other folder is refused).")] = None,
     seed: Annotated[int, typer.Option("--seed", help="Random seed (noise, textures).")] = 0,
     frames: Annotated[Optional[int], typer.Option("--frames", min=1, help="Number of frames (default: the scenario's).")] = None,
     snr: Annotated[Optional[float], typer.Option("--snr", min=0.1, max=1e6, help="Peak SNR of every target.")] = None,
@@ -376,6 +403,7 @@ def synth(
     list_: Annotated[bool, typer.Option("--list", help="Describe every scenario and exit.")] = False,
 ) -> None:
     """Write a synthetic wide-field scenario with exact truth."""
+    from wfviz.synth.folder import check_folder
     from wfviz.synth.scenarios import list_scenarios, make_scenario, write_scenario
 
     if list_ or scenario is None:
@@ -385,8 +413,7 @@ def synth(
         return
     if out_dir is None:
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
-    if out_dir.exists() and not out_dir.is_dir():
-        raise OutputError(f"{out_dir}: is a file, expected a folder to write the scenario into")
+    check_folder(out_dir, "the scenario")  # before rendering anything: a user's folder is refused
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -430,8 +457,8 @@ def screenshot(
     recording: Annotated[Path, typer.Argument(help="Recording (.rrd) to render.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
     frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (default: last).")] = None,
-    width: Annotated[int, typer.Option("--width", min=200)] = 1600,
-    height: Annotated[int, typer.Option("--height", min=200)] = 1000,
+    width: Annotated[int, typer.Option("--width", min=200, help="Image width in pixels.")] = 1600,
+    height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels.")] = 1000,
 ) -> None:
     """Render a recording in the real Rerun viewer, headless, with its default blueprint."""
     from wfviz.record.screenshot import ScreenshotError, render_screenshot
@@ -480,17 +507,17 @@ def bench_(
 @_guarded
 def tune(
     clips: Annotated[Optional[list[str]], typer.Argument(help="Clips to tune on, each CLIP or CLIP=TRUTH (truth: TRUTH, else truth.csv in or beside the clip; synth: clips bring their own).", show_default=False)] = None,
-    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Study folder: trials.csv, best.toml, report.md, study.rrd, the journal (the same command resumes it).")] = None,
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="Study folder: trials.csv, best.toml, report.md, study.rrd, the journal (the same command resumes it). \\[required, except with --print-space]")] = None,
     tracker: TrackerOpt = "gewc",
     space: Annotated[Optional[Path], typer.Option("--space", help="Search space TOML (default: the tracker's; see --print-space).")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", help="Configuration the trials start from (default: the defaults); trial 0 runs it as it is.")] = None,
     trials: Annotated[int, typer.Option("--trials", min=1, help="Finished trials the study should have (a resumed study adds the rest).")] = 20,
     objective: Annotated[str, typer.Option("--objective", help="mota, idf1 (maximised) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
-    validate: Annotated[Optional[list[str]], typer.Option("--validate", help="A clip scored in every trial but never used to choose (repeat for more).", show_default=False)] = None,
+    validate: Annotated[Optional[list[str]], typer.Option("--validate", metavar="<clip>", help="A clip scored in every trial but never used to choose (repeat for more).", show_default=False)] = None,
     folds: Annotated[int, typer.Option("--folds", min=0, help="Without --validate: leave-clips-out cross-validation of the chosen trial over K folds of the tune clips (report.md).")] = 0,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Trials run at a time (local processes, or Ray tasks with --ray). Default: this machine's cores.", show_default=False)] = None,
     seed: Annotated[int, typer.Option("--seed", help="Sampler seed (same seed and --workers: same trials).")] = 0,
-    ray: Annotated[Optional[str], typer.Option("--ray", help="Run the trials on a Ray cluster at this address (`--ray` alone: a local Ray). Needs pip install \"wfviz[ray]\".", show_default=False)] = None,
+    ray: Annotated[Optional[str], typer.Option("--ray", help="Run the trials on a Ray cluster at this address (`--ray` alone: a local Ray). Needs Ray: pip install \"wfviz\\[ray]\".", show_default=False)] = None,
     record_best: Annotated[int, typer.Option("--record-best", min=0, help="Record the K best trials (and trial 0) on every clip as .rrd with truth.")] = 0,
     stop: StopOpt = None,
     gate: GateOpt = 3.0,
@@ -604,7 +631,7 @@ def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
 @_guarded
 def compare(
     clip: ClipArg,
-    run_specs: Annotated[Optional[list[str]], typer.Option("--run", help="A run: NAME (a tracker with its defaults), NAME:CONFIG.toml or LABEL=NAME:CONFIG.toml (repeat; at least two runs in all).", show_default=False)] = None,
+    run_specs: Annotated[Optional[list[str]], typer.Option("--run", metavar="<run>", help="A run: NAME (a tracker with its defaults), NAME:CONFIG.toml or LABEL=NAME:CONFIG.toml (repeat; at least two runs in all).", show_default=False)] = None,
     study: Annotated[Optional[Path], typer.Option("--study", help="A `wfviz tune` study folder: its --top best trials and the defaults are runs too.")] = None,
     top: Annotated[int, typer.Option("--top", min=1, help="With --study: how many of its best trials.")] = 3,
     output: Annotated[Optional[Path], typer.Option("-o", "--output", help="Recording (.rrd; default recordings/<clip>-compare.rrd); each run's tracks CSV goes beside it as <stem>-<label>.csv.")] = None,
@@ -617,7 +644,7 @@ def compare(
     exact_every: ExactEveryOpt = EXACT_EVERY,
     jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     gate: GateOpt = 3.0,
-    skip_bad_frames: SkipBadOpt = False,
+    skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked."""

@@ -18,6 +18,7 @@ import numpy as np
 
 from wfviz.io.frames import Frame
 from wfviz.synth.clip import GeneratedClip, TruthRow
+from wfviz.synth.folder import write_folder
 from wfviz.synth.psf import add_gaussian_spot
 
 WIDTH, HEIGHT = 640, 512
@@ -277,14 +278,17 @@ class DemoClip(GeneratedClip):
         return path
 
     def save(self, folder: str | Path, start: int = 0, stop: int | None = None) -> Path:
-        """Write frames as 16-bit ``frame_NNNNNN.png`` plus ``truth.csv`` into ``folder``."""
-        folder = Path(folder)
-        folder.mkdir(parents=True, exist_ok=True)
-        for frame in self.frames(start, stop):
-            if not cv2.imwrite(str(folder / f"frame_{frame.index:06d}.png"), frame.image):
-                raise OSError(f"could not write frame {frame.index} to {folder}")
-        self.write_truth_csv(folder / "truth.csv", start, stop)
-        return folder
+        """Write frames as 16-bit ``frame_NNNNNN.png`` plus ``truth.csv`` into ``folder``: a new
+        or empty folder, or one wfviz wrote before (else :class:`OutputError`, nothing
+        touched; see :mod:`wfviz.synth.folder`)."""
+
+        def fill(tmp: Path) -> None:
+            for frame in self.frames(start, stop):
+                if not cv2.imwrite(str(tmp / f"frame_{frame.index:06d}.png"), frame.image):
+                    raise OSError(f"could not write frame {frame.index} to {tmp}")
+            self.write_truth_csv(tmp / "truth.csv", start, stop)
+
+        return write_folder(Path(folder), fill, by="wfviz demo --save-clip")
 
 
 def demo_clip(seed: int = 0, n_frames: int = PATH_FRAMES) -> DemoClip:

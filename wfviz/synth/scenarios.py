@@ -11,8 +11,6 @@ from __future__ import annotations
 
 import csv
 import json
-import os
-import shutil
 from collections.abc import Callable, Iterator
 from dataclasses import dataclass, replace
 from pathlib import Path
@@ -21,9 +19,9 @@ import cv2
 import numpy as np
 
 from wfviz.io.frames import Frame
-from wfviz.io.outputs import remove_stale, temp_dir
 from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
+from wfviz.synth.folder import write_folder
 from wfviz.synth.scene import (Flight, SceneSpec, Target, add_noise, add_spot, add_spots,
                                render_background, to_uint16)
 
@@ -458,35 +456,18 @@ def _open_avi(path: Path, fps: float, shape: tuple[int, int]) -> tuple[cv2.Video
     raise OSError(f"OpenCV cannot write an AVI here ({path})")
 
 
-def _commit(tmp: Path, out_dir: Path, n_frames: int) -> None:
-    """Move the finished ``tmp`` folder's files into ``out_dir``."""
-    if out_dir.exists() and not any(out_dir.iterdir()):
-        out_dir.rmdir()
-    if not out_dir.exists():
-        os.replace(tmp, out_dir)
-        return
-    for f in sorted(tmp.iterdir(), key=lambda p: p.name == "meta.json"):
-        os.replace(f, out_dir / f.name)
-    for old in out_dir.glob("frame_*.png"):
-        if old.stem[6:].isdigit() and int(old.stem[6:]) >= n_frames:
-            old.unlink()
-    shutil.rmtree(tmp, ignore_errors=True)
-
-
 def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
                    progress: Callable[[int], None] | None = None) -> Path:
     """Write 16-bit ``frame_NNNNNN.png``, ``truth.csv``, ``meta.json`` (+ ``<name>.avi``).
 
-    Everything is written into a temporary sibling folder first and moved into ``out_dir``
-    when complete (files of the same names in an existing ``out_dir`` are replaced, stale
-    frames beyond the clip removed). ``progress`` is called with the frames written so far.
-    Returns ``out_dir``.
+    ``out_dir`` must be new, empty or written by wfviz before (else :class:`OutputError`,
+    nothing touched): everything is written into a temporary sibling folder first and moved
+    into ``out_dir`` when complete; of an earlier run's files only those it listed are
+    replaced or removed (:mod:`wfviz.synth.folder`). ``progress`` is called with the frames
+    written so far. Returns ``out_dir``.
     """
-    out_dir = Path(out_dir)
-    out_dir.parent.mkdir(parents=True, exist_ok=True)
-    remove_stale(out_dir.parent)
-    tmp = temp_dir(out_dir)
-    try:
+
+    def fill(tmp: Path) -> None:
         meta, writer = clip.meta(), None
         if avi:
             offset, gain = _avi_scale(clip)
@@ -516,8 +497,5 @@ def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
                 w.writerow([r.frame, r.target_id, f"{r.x:.4f}", f"{r.y:.4f}",
                             f"{r.peak_snr:.4f}", r.visible])
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
-        _commit(tmp, out_dir, clip.n_frames)
-    except BaseException:
-        shutil.rmtree(tmp, ignore_errors=True)
-        raise
-    return out_dir
+
+    return write_folder(Path(out_dir), fill, by="wfviz synth", what="the scenario")
