@@ -4,6 +4,9 @@ one-line warning and a normal run)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -145,6 +148,40 @@ def test_skip_bad_frames_goes_on_and_logs_the_gap(tmp_path: Path) -> None:
     assert frames == {0, 1, 2, 4, 5}
     assert f"skipped: {f / '03.png'}: cannot decode image 3" in logs
     verify(tmp_path / "out" / "r.rrd")
+
+
+def wfviz(cwd: Path, *args: str | bytes) -> subprocess.CompletedProcess:
+    """The CLI in a separate process (a crash must not take the test run with it)."""
+    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True,
+                          timeout=120)
+
+
+def test_file_names_that_are_not_utf8(tmp_path: Path) -> None:
+    """Such names (surrogates in Python) crashed OpenCV (exit 139, temporaries left): images are
+    read by bytes, a video through its descriptor, and names are printed with \\xff escapes."""
+    frames = noise(shape=(5, H, W))
+    plain = folder(tmp_path / "plain", {f"frame_{i}.png": f for i, f in enumerate(frames)})
+    odd = folder(tmp_path / "odd", {f"frame_{i}.png": f for i, f in enumerate(frames)})
+    os.rename(odd / "frame_4.png", os.fsdecode(bytes(odd) + b"/frame_\xff.png"))  # sorted last
+    named = Path(os.fsdecode(bytes(tmp_path) + b"/d\xff"))
+    os.rename(plain, named)
+    video(tmp_path / "v.avi", n=10)
+    odd_video = os.fsdecode(bytes(tmp_path) + b"/v\xfe.avi")
+    os.link(tmp_path / "v.avi", odd_video)
+    runs = {name: wfviz(tmp_path, "track", clip, "--tracks", f"{name}.csv") for name, clip in
+            [("odd", "odd"), ("named", named.name), ("v", "v.avi"), ("odd_video", odd_video)]}
+    for name, r in runs.items():
+        assert r.returncode == 0 and b"Traceback" not in r.stderr, (name, r.returncode, r.stderr)
+    assert (tmp_path / "odd.csv").read_bytes() == (tmp_path / "named.csv").read_bytes()
+    assert (tmp_path / "v.csv").read_bytes() == (tmp_path / "odd_video.csv").read_bytes()
+    r = wfviz(tmp_path, "record", named.name, "--no-images")  # default output names from the folder's
+    assert r.returncode == 0, r.stderr
+    assert b"recording: recordings/d\\xff-gewc.rrd" in r.stdout and r.stderr == b""
+    (odd / "frame_\udcff.png").write_bytes(b"\x89PNG\r\n\x1a\n not an image")
+    r = wfviz(tmp_path, "track", "odd", "--tracks", "bad.csv")
+    assert r.returncode == 2 and r.stderr.decode().splitlines() == [
+        "wfviz: error: odd/frame_\\xff.png: cannot decode image 4 (--skip-bad-frames skips it)"]
+    assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".wfviz-part") or p.name == "bad.csv"]
 
 
 # --- videos ------------------------------------------------------------------------------

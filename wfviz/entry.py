@@ -24,6 +24,9 @@ def _exit_now(signum: int, frame: object) -> None:
 
 def main() -> None:
     """Run the command line (:mod:`wfviz.cli`)."""
+    for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed, not fatal
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="backslashreplace")
     previous = signal.signal(signal.SIGINT, _exit_now)
     try:
         from wfviz.cli import main as cli_main

@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
@@ -425,20 +426,54 @@ def _frame_dtype(dtype: np.dtype, path: Path) -> np.dtype:
     raise ClipError(f"{path}: unsupported pixel type {dtype}")
 
 
+def display(text: object) -> str:
+    """``text`` (a path, a message) printable as UTF-8: bytes of a non-UTF-8 file name (held by
+    Python as lone surrogates, which cannot be encoded for output) shown as ``\\xff``."""
+    s = os.fspath(text) if isinstance(text, os.PathLike) else str(text)
+    try:
+        s.encode("utf-8")
+        return s
+    except UnicodeEncodeError:
+        try:
+            return s.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:
+            return s.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _cv2_safe(path: Path) -> bool:
+    """Whether OpenCV can be given ``str(path)``: its bindings cannot convert a name that is not
+    valid UTF-8 (a crash, not an error), so such files are read by bytes or descriptor."""
+    try:
+        str(path).encode("utf-8")
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
 def _page_count(path: Path) -> int:
     """Pages of a (TIFF) image file (1 if OpenCV cannot tell)."""
     try:
         with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):
-            return int(cv2.imcount(str(path)))
-    except (cv2.error, AttributeError):
+            if _cv2_safe(path):
+                return int(cv2.imcount(str(path)))
+            ok, pages = cv2.imdecodemulti(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
+            return len(pages) if ok else 1
+    except (cv2.error, AttributeError, OSError, ValueError):
         return 1
 
 
 def _read_image(path: Path, index: int) -> tuple[np.ndarray, bool]:
-    """Decode one image at full range and reduce it to 2-D luma; True if it was colour."""
+    """Decode one image at full range and reduce it to 2-D luma; True if it was colour.
+
+    The file is read by bytes and decoded in memory, so any file name works (OpenCV cannot be
+    given a name that is not valid UTF-8)."""
+    try:
+        data = np.fromfile(path, np.uint8)
+    except OSError as exc:
+        raise BadFrameError(f"{path}: cannot read image {index} ({exc.strerror or exc})") from None
     try:
         with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):  # the error below says it in one line
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     except cv2.error:
         image = None
     if image is None or image.size == 0:
@@ -483,8 +518,22 @@ def _fourcc(code: float) -> str:
 
 
 def _capture(path: Path, luma: LumaMode = "bgr") -> cv2.VideoCapture:
-    """An open capture of ``path``, returning the raw first plane unless ``luma`` is "bgr"."""
-    cap = cv2.VideoCapture(str(path))
+    """An open capture of ``path``, returning the raw first plane unless ``luma`` is "bgr".
+
+    A path that is not valid UTF-8 (which OpenCV cannot be given) is opened by bytes and handed
+    over as ``/proc/self/fd/N``, closed once the capture has opened its own; where there is no
+    /proc, ClipError."""
+    if _cv2_safe(path):
+        cap = cv2.VideoCapture(str(path))
+    else:
+        if not os.path.isdir("/proc/self/fd"):
+            raise ClipError(f"{path}: cannot open a video whose name is not valid UTF-8 on this "
+                            f"system; rename it")
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            cap = cv2.VideoCapture(f"/proc/self/fd/{fd}")
+        finally:
+            os.close(fd)
     if not cap.isOpened():
         cap.release()
         raise ClipError(f"{path}: cannot decode video (truncated or unsupported codec)")
