@@ -272,7 +272,56 @@ def test_npy_holding_objects_is_not_unpickled(tmp_path: Path) -> None:
                  "allow_pickle=False")
 
 
+def test_frames_too_large_are_refused_before_reading(tmp_path: Path) -> None:
+    """A sparse 20000x20000 .npy ran out of memory after minutes: its header is enough."""
+    np.lib.format.open_memmap(tmp_path / "huge.npy", mode="w+", dtype=np.float64, shape=(20000, 20000))
+    r = cli(tmp_path, "track", str(tmp_path / "huge.npy"))
+    assert_error(r, tmp_path, f"{tmp_path / 'huge.npy'}: frames are 20000x20000 (400,000,000 pixels), "
+                 "larger than wfviz reads (67,108,864 pixels a frame, e.g. 8192x8192)")
+
+
 # --- truth and config --------------------------------------------------------------------
+
+
+def test_truth_csv_field_over_the_csv_limit(tmp_path: Path) -> None:
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    truth = tmp_path / "truth.csv"
+    truth.write_text("frame,target_id,x,y\n0,1,3.0,4.0\n1,1," + "9" * 140_000 + ",4.0\n")
+    r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--truth", str(truth))
+    assert_error(r, tmp_path, "truth.csv:3: not a valid CSV line (field larger than field limit (131072))")
+    r = CliRunner().invoke(app, ["eval", str(truth), str(truth)])  # a tracks CSV goes the same way
+    assert r.exit_code == 2 and r.stderr.strip().endswith("truth.csv:3: not a valid CSV line "
+                                                          "(field larger than field limit (131072))")
+
+
+DEEP = {"arrays": "[kalman]\nq = " + "[" * 3000 + "]" * 3000 + "\n",
+        "tables": "a = " + "{b = " * 3000 + "1" + "}" * 3000 + "\n"}
+
+
+@pytest.mark.parametrize("kind", DEEP)
+def test_deeply_nested_toml_config_and_space(tmp_path: Path, kind: str) -> None:
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    (tmp_path / "deep.toml").write_text(DEEP[kind])
+    r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--config", str(tmp_path / "deep.toml"))
+    assert_error(r, tmp_path, f"{tmp_path / 'deep.toml'}: nested too deeply to be a config file")
+    r = CliRunner().invoke(app, ["tune", "synth:fov70-four-targets", "--out", str(tmp_path / "out" / "study"),
+                                 "--space", str(tmp_path / "deep.toml"), "--trials", "1"])
+    assert_error(r, tmp_path, f"{tmp_path / 'deep.toml'}: nested too deeply to be a search-space file")
+
+
+def test_config_that_is_a_device_or_too_large(tmp_path: Path) -> None:
+    """``--config /dev/zero`` read until memory ran out; a pipe would wait for a writer."""
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    (tmp_path / "big.toml").write_text("# padding\n" * 110_000)
+    os.mkfifo(tmp_path / "fifo")
+    for path, message in [("/dev/zero", "not a regular file (a device or pipe?), not a config file"),
+                          (str(tmp_path / "fifo"), "not a regular file"),
+                          (str(tmp_path / "big.toml"), "larger than 1 MiB, too large for a config file")]:
+        r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--config", path)
+        assert_error(r, tmp_path, f"{path}: {message}")
+    r = CliRunner().invoke(app, ["tune", "synth:fov70-four-targets", "--out", str(tmp_path / "out" / "study"),
+                                 "--space", "/dev/zero", "--trials", "1"])
+    assert_error(r, tmp_path, "/dev/zero: not a regular file (a device or pipe?), not a search-space file")
 
 
 def test_malformed_truth_csv_names_line_and_column(tmp_path: Path) -> None:

@@ -65,6 +65,10 @@ _RANGE_FRACTION = 1e-3  # share of probe pixels beyond that margin that proves r
 #: horizon gradient/variance windows with their margins fit, with room to spare); checked by
 #: ``wfviz.run`` with the tracker's configured windows, not when a clip is opened.
 MIN_SIDE = 16
+#: Most pixels a frame may have (8192x8192): the stages hold several float32 copies of a frame,
+#: so larger frames would exhaust memory part way through. Checked when a clip is opened (for a
+#: .npy from its header, before any pixel is read) and by ``wfviz.run``.
+MAX_PIXELS = 1 << 26
 
 
 class ClipError(ValueError):
@@ -130,7 +134,11 @@ def synthetic_clip(spec: str, fps: float | None = None) -> Clip:
 
 
 def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = MIN_SIDE) -> None:
-    """Raise ClipError when frames of ``shape`` (rows, columns) are below ``minimum`` a side."""
+    """Raise ClipError when frames of ``shape`` (rows, columns) are below ``minimum`` a side
+    or have more than :data:`MAX_PIXELS` pixels."""
+    if shape[0] * shape[1] > MAX_PIXELS:
+        raise ClipError(f"{source}: frames are {shape[1]}x{shape[0]} ({shape[0] * shape[1]:,} pixels), "
+                        f"larger than wfviz reads ({MAX_PIXELS:,} pixels a frame, e.g. 8192x8192)")
     if min(shape) < minimum:
         raise ClipError(f"{source}: frames are {shape[1]}x{shape[0]}, smaller than the "
                         f"processing windows need (at least {minimum}x{minimum})")
@@ -143,6 +151,7 @@ class _ClipBase:
 
     def __init__(self, path: Path, name: str, fps: float, n_frames: int | None,
                  shape: tuple[int, int], nan_as_zero: bool = False) -> None:
+        check_frame_size(shape, path, minimum=1)  # too large: refused before any frame is read
         self.path = path
         self._name, self._fps, self._n_frames, self._shape = name, fps, n_frames, shape
         self.nan_as_zero = nan_as_zero
