@@ -254,6 +254,50 @@ def test_nan_and_inf_name_the_frame_or_become_zero(tmp_path: Path) -> None:
                               f"pixels, replaced by 0 (later frames are not reported)"]
 
 
+def moving_target(n: int = 30, shape: tuple[int, int] = (64, 80)) -> np.ndarray:
+    """(n, rows, columns) float64 frames: a background of 1000 with noise of 20 and a target of
+    peak 300 moving 2 px a frame to the right."""
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    stack = 1000 + 20 * rng.standard_normal((n, *shape))
+    for t in range(n):
+        stack[t] += 300 * np.exp(-((xx - 10 - 2 * t) ** 2 + (yy - 20 - 0.7 * t) ** 2) / 2.0)
+    return stack
+
+
+@pytest.mark.parametrize("tracker", ["gewc", "fusion"])
+def test_float_frames_of_any_scale_give_the_same_tracks(tmp_path: Path, tracker: str) -> None:
+    """Float clips in small units: 1e-9 gave no track (absolute floors such as 1e-6), denormals
+    (1e-40 a grey level in float32) and 1e30 overflowed float32 and crashed. Frames outside a
+    spread of 2**-8..2**32 are rescaled by a power of two, with a note."""
+    base = moving_target()
+    tracks = {}
+    for scale in (1e-40, 1e-30, 1e-9, 1e-3, 1.0, 1e10, 1e30):
+        name = f"s{scale:g}"
+        np.save(tmp_path / f"{name}.npy", (base * scale).astype(np.float32))
+        r = cli(tmp_path, "track", str(tmp_path / f"{name}.npy"), "--tracker", tracker,
+                "--tracks", str(tmp_path / f"{name}.csv"))
+        assert r.exit_code == 0 and "Traceback" not in r.stderr, (scale, r.stderr, r.exception)
+        rescaled = [w for w in warnings_of(r) if "float frames rescaled by 2**" in w]
+        assert len(warnings_of(r)) == len(rescaled) == (0 if scale in (1e-3, 1.0) else 1), r.stderr
+        tracks[scale] = (tmp_path / f"{name}.csv").read_bytes()
+    assert tracks[1.0].count(b"\n") > 20
+    assert all(t == tracks[1.0] for t in tracks.values())
+
+
+def test_float_frames_beyond_float32_at_the_clips_scale(tmp_path: Path) -> None:
+    stack = moving_target(3).astype(np.float32)
+    stack[0] *= 1e-30  # sets the scale: x2**105
+    np.save(tmp_path / "f.npy", stack)
+    r = cli(tmp_path, "track", str(tmp_path / "f.npy"))
+    assert r.exit_code == 2 and r.stderr.splitlines() == [  # the note, then the error
+        f"wfviz: note: {tmp_path / 'f.npy'}: float frames rescaled by 2**105 (frame 0's spread, 1.41e-29, is "
+        "outside 2**-8..2**32); tracks are unaffected, recorded values are in the new units",
+        f"wfviz: error: {tmp_path / 'f.npy'}: frame 1 holds values up to 1.31e+03, too large at the clip's "
+        "scale (x2**105, set by the first frame read; values must stay within 2**64 after it)"]
+    assert leftovers(tmp_path) == []
+
+
 def test_frames_smaller_than_the_processing_windows(tmp_path: Path) -> None:
     np.save(tmp_path / "tiny.npy", noise(shape=(3, 12, 40)))
     r = cli(tmp_path, "record", str(tmp_path / "tiny.npy"))

@@ -69,6 +69,12 @@ MIN_SIDE = 16
 #: so larger frames would exhaust memory part way through. Checked when a clip is opened (for a
 #: .npy from its header, before any pixel is read) and by ``wfviz.run``.
 MAX_PIXELS = 1 << 26
+#: Float frames whose spread (median absolute deviation of the first frame read) lies outside
+#: 2**FLOAT_SPREAD[0] .. 2**FLOAT_SPREAD[1] are rescaled by a power of two that brings it to
+#: 2**FLOAT_TARGET (see ``_ClipBase._rescale``); integer frames are never rescaled.
+FLOAT_SPREAD = (-8, 32)
+FLOAT_TARGET = 10
+_MAX_SCALED = 2.0 ** 64  # largest rescaled value: squares stay within float32
 
 
 class ClipError(ValueError):
@@ -156,6 +162,8 @@ class _ClipBase:
         self._name, self._fps, self._n_frames, self._shape = name, fps, n_frames, shape
         self.nan_as_zero = nan_as_zero
         self._nan_warned = False
+        #: float frames are multiplied by 2**gain_exponent (None: not set yet; see ``_rescale``)
+        self.gain_exponent: int | None = None
         #: frames left out with ``skip_bad_frames``: index -> problem
         self.skipped: dict[int, str] = {}
 
@@ -189,8 +197,34 @@ class _ClipBase:
             raise ClipError(f"{source}: frame {index} is {image.shape[1]}x{image.shape[0]}, "
                             f"expected {self._shape[1]}x{self._shape[0]}")
         if image.dtype.kind == "f":
-            image = self._finite(index, image, source)
+            image = self._rescale(index, self._finite(index, image, source), source)
         return Frame(index, index / self._fps, np.ascontiguousarray(image))
+
+    def _rescale(self, index: int, image: np.ndarray, source: str) -> np.ndarray:
+        """Float ``image`` times 2**k, k fixed by the first frame read (a note when k != 0).
+
+        Float clips come in any unit (1e-40 to 1e30 a grey level). The stages' arithmetic is
+        float32 (squares in variances underflow to 0 near 1e-20 and overflow near 1e19) and has
+        floors in grey levels (1e-6 for a noise sigma, ...), so frames whose spread lies outside
+        2**-8 .. 2**32 are brought to a spread of about 2**10, like integer data. A power of two
+        changes only the exponent: the values are exact, just in other units, and the tracks
+        (pixel positions) do not depend on it. Frames within the range are returned as read."""
+        if self.gain_exponent is None:
+            self.gain_exponent = _gain_exponent(image)
+            if self.gain_exponent:
+                warnings.warn(f"{source}: float frames rescaled by 2**{self.gain_exponent} (frame {index}'s "
+                              f"spread, {_spread(image):.3g}, is outside 2**{FLOAT_SPREAD[0]}..2**"
+                              f"{FLOAT_SPREAD[1]}); tracks are unaffected, recorded values are in the new "
+                              f"units", ClipNote, stacklevel=4)
+        if not self.gain_exponent:
+            return image
+        with np.errstate(over="ignore"):
+            scaled = np.ldexp(image, self.gain_exponent, dtype=image.dtype)
+        if not float(np.abs(scaled).max()) <= _MAX_SCALED:
+            raise ClipError(f"{source}: frame {index} holds values up to {float(np.abs(image).max()):.3g}, "
+                            f"too large at the clip's scale (x2**{self.gain_exponent}, set by the first "
+                            f"frame read; values must stay within 2**64 after it)")
+        return scaled
 
     def _finite(self, index: int, image: np.ndarray, source: str) -> np.ndarray:
         """``image`` with NaN/inf set to 0 if ``nan_as_zero`` (warned once), else ClipError."""
@@ -303,7 +337,8 @@ class NpyClip(_ClipBase):
 
     uint8, uint16 and float32 are kept; bool becomes uint8; every other integer or float
     type becomes float32 (exact for integers up to 2**24 in magnitude, so signed data keeps
-    its sign). Object, string, complex and structured arrays raise ``ClipError``.
+    its sign). Object, string, complex and structured arrays raise ``ClipError``. Float frames
+    far from the usual scale are rescaled by a power of two (``_ClipBase._rescale``).
     """
 
     def __init__(self, path: Path, fps: float | None = None, *, nan_as_zero: bool = False) -> None:
@@ -402,6 +437,26 @@ class VideoClip(_ClipBase):
         """Whether the container says the stream goes on past ``index`` (beyond estimate slack)."""
         n = self.n_frames
         return n is not None and index < n - max(1, n // 200)
+
+
+def _spread(image: np.ndarray) -> float:
+    """A float frame's spread: its median absolute deviation, else (mostly constant) its largest
+    deviation from the median, else (constant) the magnitude of its value."""
+    x = image.astype(np.float64, copy=False).ravel()
+    med = float(np.median(x))
+    dev = np.abs(x - med)
+    return float(np.median(dev)) or float(dev.max()) or abs(med)
+
+
+def _gain_exponent(image: np.ndarray) -> int:
+    """k so that 2**k brings the spread of float ``image`` into range (0: already in range or
+    all zero); never so large that the frame's largest value passes 2**64."""
+    spread = _spread(image)
+    if spread == 0.0 or FLOAT_SPREAD[0] <= math.log2(spread) <= FLOAT_SPREAD[1]:
+        return 0
+    k = FLOAT_TARGET - math.frexp(spread)[1]
+    peak = float(np.abs(image.astype(np.float64, copy=False)).max())
+    return min(k, 64 - math.frexp(peak)[1])  # peak * 2**k < 2**64 (_MAX_SCALED)
 
 
 def _indices(start: int, stop: int | None, n: int | None) -> Iterable[int]:
