@@ -182,6 +182,10 @@ def test_file_names_that_are_not_utf8(tmp_path: Path) -> None:
     assert r.returncode == 2 and r.stderr.decode().splitlines() == [
         "wfviz: error: odd/frame_\\xff.png: cannot decode image 4 (--skip-bad-frames skips it)"]
     assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".wfviz-part") or p.name == "bad.csv"]
+    r = wfviz(tmp_path, "synth", "lowsnr-tbd", os.fsdecode(b"s\xff"), "--frames", "3", "--avi")  # writers too
+    assert r.returncode == 0 and r.stdout.startswith(b"wrote 3 frames of 'lowsnr-tbd' (seed 0) to s\\xff\n"), r
+    assert sorted(p.name for p in (tmp_path / "s\udcff").iterdir()) == [
+        "frame_000000.png", "frame_000001.png", "frame_000002.png", "lowsnr-tbd.avi", "meta.json", "truth.csv"]
 
 
 # --- videos ------------------------------------------------------------------------------

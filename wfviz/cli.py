@@ -167,7 +167,7 @@ def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
     check_not_inputs(outputs, [*files, *((p, what) for p, what in inputs if p is not None)], folders)
     for folder in dict.fromkeys(Path(o).parent for o in outputs if o is not None):
         for stale in remove_stale(folder):
-            err.print(f"wfviz: note: removed {stale} (left by a wfviz run that was killed)",
+            err.print(f"wfviz: note: removed {display(stale)} (left by a wfviz run that was killed)",
                       highlight=False, markup=False, soft_wrap=True)
 
 

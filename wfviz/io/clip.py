@@ -514,6 +514,35 @@ def _cv2_safe(path: Path) -> bool:
         return False
 
 
+def write_image(path: Path, image: np.ndarray) -> bool:
+    """``cv2.imwrite`` for any file name: encoded in memory (format from the suffix), written
+    by bytes. False if OpenCV cannot encode ``image``."""
+    ok, data = cv2.imencode(Path(path).suffix or ".png", image)
+    if not ok:
+        return False
+    data.tofile(path)
+    return True
+
+
+@contextmanager
+def opencv_name(path: Path) -> Iterator[str]:
+    """A name of ``path`` OpenCV can be given while the block runs (for writers, which pick the
+    container from the suffix): ``str(path)``, or for a name that is not valid UTF-8 a symlink
+    with a plain name in a private temporary folder, removed on exit. The file is created first
+    so that the link is not dangling."""
+    if _cv2_safe(path):
+        yield str(path)
+        return
+    import tempfile
+
+    target = os.path.abspath(path)
+    os.close(os.open(target, os.O_WRONLY | os.O_CREAT, 0o666))
+    with tempfile.TemporaryDirectory(prefix="wfviz-name-") as folder:
+        link = os.path.join(folder, "file" + (Path(path).suffix if _cv2_safe(Path(path).suffix) else ""))
+        os.symlink(target, link)
+        yield link
+
+
 def _page_count(path: Path) -> int:
     """Pages of a (TIFF) image file (1 if OpenCV cannot tell)."""
     try:

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from wfviz.io.clip import write_image
 from wfviz.io.frames import Frame
 from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.psf import add_gaussian_spot
@@ -281,7 +282,7 @@ class DemoClip(GeneratedClip):
         folder = Path(folder)
         folder.mkdir(parents=True, exist_ok=True)
         for frame in self.frames(start, stop):
-            if not cv2.imwrite(str(folder / f"frame_{frame.index:06d}.png"), frame.image):
+            if not write_image(folder / f"frame_{frame.index:06d}.png", frame.image):
                 raise OSError(f"could not write frame {frame.index} to {folder}")
         self.write_truth_csv(folder / "truth.csv", start, stop)
         return folder
