@@ -188,6 +188,21 @@ def test_file_names_that_are_not_utf8(tmp_path: Path) -> None:
         "frame_000000.png", "frame_000001.png", "frame_000002.png", "lowsnr-tbd.avi", "meta.json", "truth.csv"]
 
 
+def test_study_and_comparison_outputs_with_names_that_are_not_utf8(tmp_path: Path) -> None:
+    """rerun's save() (wfviz compare, the tune study's recording) and text naming such a file
+    written as UTF-8 (tune's best.toml) refused the name, for tune after every trial had run."""
+    from wfviz.io.outputs import write_atomically
+
+    best = tmp_path / "tu\udcff" / "best.toml"  # what wfviz tune --out writes: text naming its folder
+    best.parent.mkdir()
+    write_atomically(best, f"# reproduce: wfviz track --config {best}\n")
+    assert best.read_bytes() == b"# reproduce: wfviz track --config " + os.fsencode(best) + b"\n"
+    rrd = tmp_path / "c\udcff.rrd"
+    r = wfviz(tmp_path, "compare", "synth:lowsnr-tbd", "--stop", "3", "--run", "gewc", "--run", "tbd", "-o", rrd.name)
+    assert r.returncode == 0 and rrd.stat().st_size > 0, r.stderr
+    assert b"recording: c\\xff.rrd" in r.stdout
+
+
 # --- videos ------------------------------------------------------------------------------
 
 
