@@ -4,6 +4,9 @@ one-line warning and a normal run)."""
 
 from __future__ import annotations
 
+import os
+import subprocess
+import sys
 from pathlib import Path
 
 import cv2
@@ -147,6 +150,59 @@ def test_skip_bad_frames_goes_on_and_logs_the_gap(tmp_path: Path) -> None:
     verify(tmp_path / "out" / "r.rrd")
 
 
+def wfviz(cwd: Path, *args: str | bytes) -> subprocess.CompletedProcess:
+    """The CLI in a separate process (a crash must not take the test run with it)."""
+    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True,
+                          timeout=120)
+
+
+def test_file_names_that_are_not_utf8(tmp_path: Path) -> None:
+    """Such names (surrogates in Python) crashed OpenCV (exit 139, temporaries left): images are
+    read by bytes, a video through its descriptor, and names are printed with \\xff escapes."""
+    frames = noise(shape=(5, H, W))
+    plain = folder(tmp_path / "plain", {f"frame_{i}.png": f for i, f in enumerate(frames)})
+    odd = folder(tmp_path / "odd", {f"frame_{i}.png": f for i, f in enumerate(frames)})
+    os.rename(odd / "frame_4.png", os.fsdecode(bytes(odd) + b"/frame_\xff.png"))  # sorted last
+    named = Path(os.fsdecode(bytes(tmp_path) + b"/d\xff"))
+    os.rename(plain, named)
+    video(tmp_path / "v.avi", n=10)
+    odd_video = os.fsdecode(bytes(tmp_path) + b"/v\xfe.avi")
+    os.link(tmp_path / "v.avi", odd_video)
+    runs = {name: wfviz(tmp_path, "track", clip, "--tracks", f"{name}.csv") for name, clip in
+            [("odd", "odd"), ("named", named.name), ("v", "v.avi"), ("odd_video", odd_video)]}
+    for name, r in runs.items():
+        assert r.returncode == 0 and b"Traceback" not in r.stderr, (name, r.returncode, r.stderr)
+    assert (tmp_path / "odd.csv").read_bytes() == (tmp_path / "named.csv").read_bytes()
+    assert (tmp_path / "v.csv").read_bytes() == (tmp_path / "odd_video.csv").read_bytes()
+    r = wfviz(tmp_path, "record", named.name, "--no-images")  # default output names from the folder's
+    assert r.returncode == 0, r.stderr
+    assert b"recording: recordings/d\\xff-gewc.rrd" in r.stdout and r.stderr == b""
+    (odd / "frame_\udcff.png").write_bytes(b"\x89PNG\r\n\x1a\n not an image")
+    r = wfviz(tmp_path, "track", "odd", "--tracks", "bad.csv")
+    assert r.returncode == 2 and r.stderr.decode().splitlines() == [
+        "wfviz: error: odd/frame_\\xff.png: cannot decode image 4 (--skip-bad-frames skips it)"]
+    assert not [p for p in tmp_path.rglob("*") if p.name.endswith(".wfviz-part") or p.name == "bad.csv"]
+    r = wfviz(tmp_path, "synth", "lowsnr-tbd", os.fsdecode(b"s\xff"), "--frames", "3", "--avi")  # writers too
+    assert r.returncode == 0 and r.stdout.startswith(b"wrote 3 frames of 'lowsnr-tbd' (seed 0) to s\\xff\n"), r
+    assert sorted(p.name for p in (tmp_path / "s\udcff").iterdir()) == [
+        "frame_000000.png", "frame_000001.png", "frame_000002.png", "lowsnr-tbd.avi", "meta.json", "truth.csv"]
+
+
+def test_study_and_comparison_outputs_with_names_that_are_not_utf8(tmp_path: Path) -> None:
+    """rerun's save() (wfviz compare, the tune study's recording) and text naming such a file
+    written as UTF-8 (tune's best.toml) refused the name, for tune after every trial had run."""
+    from wfviz.io.outputs import write_atomically
+
+    best = tmp_path / "tu\udcff" / "best.toml"  # what wfviz tune --out writes: text naming its folder
+    best.parent.mkdir()
+    write_atomically(best, f"# reproduce: wfviz track --config {best}\n")
+    assert best.read_bytes() == b"# reproduce: wfviz track --config " + os.fsencode(best) + b"\n"
+    rrd = tmp_path / "c\udcff.rrd"
+    r = wfviz(tmp_path, "compare", "synth:lowsnr-tbd", "--stop", "3", "--run", "gewc", "--run", "tbd", "-o", rrd.name)
+    assert r.returncode == 0 and rrd.stat().st_size > 0, r.stderr
+    assert b"recording: c\\xff.rrd" in r.stdout
+
+
 # --- videos ------------------------------------------------------------------------------
 
 
@@ -217,6 +273,50 @@ def test_nan_and_inf_name_the_frame_or_become_zero(tmp_path: Path) -> None:
                               f"pixels, replaced by 0 (later frames are not reported)"]
 
 
+def moving_target(n: int = 30, shape: tuple[int, int] = (64, 80)) -> np.ndarray:
+    """(n, rows, columns) float64 frames: a background of 1000 with noise of 20 and a target of
+    peak 300 moving 2 px a frame to the right."""
+    rng = np.random.default_rng(3)
+    yy, xx = np.mgrid[:shape[0], :shape[1]]
+    stack = 1000 + 20 * rng.standard_normal((n, *shape))
+    for t in range(n):
+        stack[t] += 300 * np.exp(-((xx - 10 - 2 * t) ** 2 + (yy - 20 - 0.7 * t) ** 2) / 2.0)
+    return stack
+
+
+@pytest.mark.parametrize("tracker", ["gewc", "fusion"])
+def test_float_frames_of_any_scale_give_the_same_tracks(tmp_path: Path, tracker: str) -> None:
+    """Float clips in small units: 1e-9 gave no track (absolute floors such as 1e-6), denormals
+    (1e-40 a grey level in float32) and 1e30 overflowed float32 and crashed. Frames outside a
+    spread of 2**-8..2**32 are rescaled by a power of two, with a note."""
+    base = moving_target()
+    tracks = {}
+    for scale in (1e-40, 1e-30, 1e-9, 1e-3, 1.0, 1e10, 1e30):
+        name = f"s{scale:g}"
+        np.save(tmp_path / f"{name}.npy", (base * scale).astype(np.float32))
+        r = cli(tmp_path, "track", str(tmp_path / f"{name}.npy"), "--tracker", tracker,
+                "--tracks", str(tmp_path / f"{name}.csv"))
+        assert r.exit_code == 0 and "Traceback" not in r.stderr, (scale, r.stderr, r.exception)
+        rescaled = [w for w in warnings_of(r) if "float frames rescaled by 2**" in w]
+        assert len(warnings_of(r)) == len(rescaled) == (0 if scale in (1e-3, 1.0) else 1), r.stderr
+        tracks[scale] = (tmp_path / f"{name}.csv").read_bytes()
+    assert tracks[1.0].count(b"\n") > 20
+    assert all(t == tracks[1.0] for t in tracks.values())
+
+
+def test_float_frames_beyond_float32_at_the_clips_scale(tmp_path: Path) -> None:
+    stack = moving_target(3).astype(np.float32)
+    stack[0] *= 1e-30  # sets the scale: x2**105
+    np.save(tmp_path / "f.npy", stack)
+    r = cli(tmp_path, "track", str(tmp_path / "f.npy"))
+    assert r.exit_code == 2 and r.stderr.splitlines() == [  # the note, then the error
+        f"wfviz: note: {tmp_path / 'f.npy'}: float frames rescaled by 2**105 (frame 0's spread, 1.41e-29, is "
+        "outside 2**-8..2**32); tracks are unaffected, recorded values are in the new units",
+        f"wfviz: error: {tmp_path / 'f.npy'}: frame 1 holds values up to 1.31e+03, too large at the clip's "
+        "scale (x2**105, set by the first frame read; values must stay within 2**64 after it)"]
+    assert leftovers(tmp_path) == []
+
+
 def test_frames_smaller_than_the_processing_windows(tmp_path: Path) -> None:
     np.save(tmp_path / "tiny.npy", noise(shape=(3, 12, 40)))
     r = cli(tmp_path, "record", str(tmp_path / "tiny.npy"))
@@ -235,7 +335,56 @@ def test_npy_holding_objects_is_not_unpickled(tmp_path: Path) -> None:
                  "allow_pickle=False")
 
 
+def test_frames_too_large_are_refused_before_reading(tmp_path: Path) -> None:
+    """A sparse 20000x20000 .npy ran out of memory after minutes: its header is enough."""
+    np.lib.format.open_memmap(tmp_path / "huge.npy", mode="w+", dtype=np.float64, shape=(20000, 20000))
+    r = cli(tmp_path, "track", str(tmp_path / "huge.npy"))
+    assert_error(r, tmp_path, f"{tmp_path / 'huge.npy'}: frames are 20000x20000 (400,000,000 pixels), "
+                 "larger than wfviz reads (67,108,864 pixels a frame, e.g. 8192x8192)")
+
+
 # --- truth and config --------------------------------------------------------------------
+
+
+def test_truth_csv_field_over_the_csv_limit(tmp_path: Path) -> None:
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    truth = tmp_path / "truth.csv"
+    truth.write_text("frame,target_id,x,y\n0,1,3.0,4.0\n1,1," + "9" * 140_000 + ",4.0\n")
+    r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--truth", str(truth))
+    assert_error(r, tmp_path, "truth.csv:3: not a valid CSV line (field larger than field limit (131072))")
+    r = CliRunner().invoke(app, ["eval", str(truth), str(truth)])  # a tracks CSV goes the same way
+    assert r.exit_code == 2 and r.stderr.strip().endswith("truth.csv:3: not a valid CSV line "
+                                                          "(field larger than field limit (131072))")
+
+
+DEEP = {"arrays": "[kalman]\nq = " + "[" * 3000 + "]" * 3000 + "\n",
+        "tables": "a = " + "{b = " * 3000 + "1" + "}" * 3000 + "\n"}
+
+
+@pytest.mark.parametrize("kind", DEEP)
+def test_deeply_nested_toml_config_and_space(tmp_path: Path, kind: str) -> None:
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    (tmp_path / "deep.toml").write_text(DEEP[kind])
+    r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--config", str(tmp_path / "deep.toml"))
+    assert_error(r, tmp_path, f"{tmp_path / 'deep.toml'}: nested too deeply to be a config file")
+    r = CliRunner().invoke(app, ["tune", "synth:fov70-four-targets", "--out", str(tmp_path / "out" / "study"),
+                                 "--space", str(tmp_path / "deep.toml"), "--trials", "1"])
+    assert_error(r, tmp_path, f"{tmp_path / 'deep.toml'}: nested too deeply to be a search-space file")
+
+
+def test_config_that_is_a_device_or_too_large(tmp_path: Path) -> None:
+    """``--config /dev/zero`` read until memory ran out; a pipe would wait for a writer."""
+    np.save(tmp_path / "s.npy", noise(shape=(3, H, W)))
+    (tmp_path / "big.toml").write_text("# padding\n" * 110_000)
+    os.mkfifo(tmp_path / "fifo")
+    for path, message in [("/dev/zero", "not a regular file (a device or pipe?), not a config file"),
+                          (str(tmp_path / "fifo"), "not a regular file"),
+                          (str(tmp_path / "big.toml"), "larger than 1 MiB, too large for a config file")]:
+        r = cli(tmp_path, "track", str(tmp_path / "s.npy"), "--config", path)
+        assert_error(r, tmp_path, f"{path}: {message}")
+    r = CliRunner().invoke(app, ["tune", "synth:fov70-four-targets", "--out", str(tmp_path / "out" / "study"),
+                                 "--space", "/dev/zero", "--trials", "1"])
+    assert_error(r, tmp_path, "/dev/zero: not a regular file (a device or pipe?), not a search-space file")
 
 
 def test_malformed_truth_csv_names_line_and_column(tmp_path: Path) -> None:

@@ -18,7 +18,7 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from wfviz.config import ConfigError, config_to_toml
-from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, open_clip
+from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, display, open_clip
 from wfviz.io.frames import Clip
 from wfviz.io.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
@@ -100,7 +100,7 @@ NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pix
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
-    err.print(f"[bold red]wfviz: error:[/] {escape(str(message))}", highlight=False, soft_wrap=True)
+    err.print(f"[bold red]wfviz: error:[/] {escape(display(message))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
@@ -112,7 +112,7 @@ def _show_warning(message, category, filename, lineno, file=None, line=None) -> 
         kind = "warning"
     else:
         kind = f"warning: {category.__name__}"
-    err.print(f"[yellow]wfviz: {kind}:[/] {escape(str(message))}", highlight=False, soft_wrap=True)
+    err.print(f"[yellow]wfviz: {kind}:[/] {escape(display(message))}", highlight=False, soft_wrap=True)
 
 
 class Terminated(KeyboardInterrupt):
@@ -189,7 +189,7 @@ def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
     check_not_inputs(outputs, [*files, *((p, what) for p, what in inputs if p is not None)], folders)
     for folder in dict.fromkeys(Path(o).parent for o in outputs if o is not None):
         for stale in remove_stale(folder):
-            err.print(f"wfviz: note: removed {stale} (left by a wfviz run that was killed)",
+            err.print(f"wfviz: note: removed {display(stale)} (left by a wfviz run that was killed)",
                       highlight=False, markup=False, soft_wrap=True)
 
 
@@ -223,7 +223,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
-        task = progress.add_task(escape(clip.name), total=total, fps=0.0)
+        task = progress.add_task(escape(display(clip.name)), total=total, fps=0.0)
         count = [0]
         import time
         t0 = time.perf_counter()
@@ -259,10 +259,10 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) ->
         shown = ", ".join(map(str, summary.skipped[:10])) + (", ..." if len(summary.skipped) > 10 else "")
         out.print(f"  skipped:   {len(summary.skipped)} unreadable frames ({shown})", highlight=False, markup=False)
     if tracks is not None:
-        out.print(f"  tracks:    {tracks}{held if signum else ''}", highlight=False, markup=False)
+        out.print(f"  tracks:    {display(tracks)}{held if signum else ''}", highlight=False, markup=False)
     if recording is not None:
-        out.print(f"  recording: {recording}{held if signum else ''}", highlight=False, markup=False)
-        out.print(f"  open it:   rerun {recording}", highlight=False, markup=False)
+        out.print(f"  recording: {display(recording)}{held if signum else ''}", highlight=False, markup=False)
+        out.print(f"  open it:   rerun {display(recording)}", highlight=False, markup=False)
     if summary.scores is not None:
         from wfviz.evaluate import format_table
         out.print(format_table(summary.scores), highlight=False, markup=False)

@@ -9,6 +9,8 @@ from __future__ import annotations
 import dataclasses
 import difflib
 import math
+import os
+import stat
 import tomllib
 from dataclasses import dataclass, field, fields
 from pathlib import Path
@@ -313,15 +315,32 @@ def config_from_dict(data: dict[str, Any], cls: type | None = None) -> Any:
     return config
 
 
+#: Largest config or search-space file read (bytes); the defaults print as about 3 KB.
+MAX_TOML_BYTES = 1 << 20
+
+
 def read_toml(path: Path, what: str) -> dict[str, Any]:
     """The TOML file ``path`` (a ``what``: "config file", ...) parsed; ConfigError naming the
-    file when it is missing, a folder or not valid TOML. A byte-order mark is accepted."""
+    file when it is missing, a folder, not a regular file (a device, a pipe), larger than
+    :data:`MAX_TOML_BYTES`, nested too deeply or not valid TOML. A byte-order mark is accepted."""
     try:
-        return tomllib.loads(path.read_text(encoding="utf-8-sig"))  # a BOM, as some editors save
+        mode = os.stat(path).st_mode  # before opening: opening a pipe waits for a writer
+        if stat.S_ISDIR(mode):
+            raise IsADirectoryError
+        if not stat.S_ISREG(mode):
+            raise ConfigError(f"{path}: not a regular file (a device or pipe?), not a {what}")
+        with open(path, "rb") as fh:
+            data = fh.read(MAX_TOML_BYTES + 1)  # never more: the file may grow while read
+        if len(data) > MAX_TOML_BYTES:
+            raise ConfigError(f"{path}: larger than {MAX_TOML_BYTES // (1 << 20)} MiB, too large "
+                              f"for a {what}")
+        return tomllib.loads(data.decode("utf-8-sig"))  # a BOM, as some editors save
     except FileNotFoundError:
         raise ConfigError(f"{path}: no such {what}") from None
     except IsADirectoryError:
         raise ConfigError(f"{path}: is a folder, not a {what}") from None
+    except RecursionError:
+        raise ConfigError(f"{path}: nested too deeply to be a {what}") from None
     except (tomllib.TOMLDecodeError, UnicodeDecodeError) as exc:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
 

@@ -4,6 +4,7 @@ moment to import) or after the command's own handling ends the program with one 
 
 from __future__ import annotations
 
+import codecs
 import os
 import signal
 import sys
@@ -22,8 +23,23 @@ def _exit_now(signum: int, frame: object) -> None:
     os._exit(130)
 
 
+def _escape(exc: UnicodeError) -> tuple[str, int]:
+    """Output error handler: a byte of a non-UTF-8 file name (a lone surrogate U+DC80-U+DCFF, as
+    Python holds it) printed as ``\\xff``, any other unprintable character backslash-escaped."""
+    if not isinstance(exc, UnicodeEncodeError):
+        raise exc
+    text = exc.object[exc.start:exc.end]
+    if all(0xDC80 <= ord(c) <= 0xDCFF for c in text):
+        return "".join(f"\\x{ord(c) - 0xDC00:02x}" for c in text), exc.end
+    return codecs.backslashreplace_errors(exc)
+
+
 def main() -> None:
     """Run the command line (:mod:`wfviz.cli`)."""
+    codecs.register_error("wfviz-escape", _escape)
+    for stream in (sys.stdout, sys.stderr):  # a file name that is not UTF-8 is printed, not fatal
+        if hasattr(stream, "reconfigure"):
+            stream.reconfigure(errors="wfviz-escape")
     previous = signal.signal(signal.SIGINT, _exit_now)
     try:
         from wfviz.cli import main as cli_main

@@ -160,6 +160,8 @@ def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = 
                 (shown if ok else hidden)[f].append((i, x, y))
     except UnicodeDecodeError as e:
         raise TruthError(f"{name}: not UTF-8 text ({e.reason})") from None
+    except csv.Error as e:  # a field over csv.field_size_limit(), a NUL byte, ...
+        raise TruthError(f"{name}:{reader.reader.line_num}: not a valid CSV line ({e})") from None
     return dict(shown), dict(hidden)
 
 

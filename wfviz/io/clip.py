@@ -27,6 +27,7 @@ from __future__ import annotations
 
 import itertools
 import math
+import os
 import warnings
 from collections.abc import Iterable, Iterator, Sequence
 from contextlib import contextmanager
@@ -64,6 +65,16 @@ _RANGE_FRACTION = 1e-3  # share of probe pixels beyond that margin that proves r
 #: horizon gradient/variance windows with their margins fit, with room to spare); checked by
 #: ``wfviz.run`` with the tracker's configured windows, not when a clip is opened.
 MIN_SIDE = 16
+#: Most pixels a frame may have (8192x8192): the stages hold several float32 copies of a frame,
+#: so larger frames would exhaust memory part way through. Checked when a clip is opened (for a
+#: .npy from its header, before any pixel is read) and by ``wfviz.run``.
+MAX_PIXELS = 1 << 26
+#: Float frames whose spread (median absolute deviation of the first frame read) lies outside
+#: 2**FLOAT_SPREAD[0] .. 2**FLOAT_SPREAD[1] are rescaled by a power of two that brings it to
+#: 2**FLOAT_TARGET (see ``_ClipBase._rescale``); integer frames are never rescaled.
+FLOAT_SPREAD = (-8, 32)
+FLOAT_TARGET = 10
+_MAX_SCALED = 2.0 ** 64  # largest rescaled value: squares stay within float32
 
 
 class ClipError(ValueError):
@@ -129,7 +140,11 @@ def synthetic_clip(spec: str, fps: float | None = None) -> Clip:
 
 
 def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = MIN_SIDE) -> None:
-    """Raise ClipError when frames of ``shape`` (rows, columns) are below ``minimum`` a side."""
+    """Raise ClipError when frames of ``shape`` (rows, columns) are below ``minimum`` a side
+    or have more than :data:`MAX_PIXELS` pixels."""
+    if shape[0] * shape[1] > MAX_PIXELS:
+        raise ClipError(f"{source}: frames are {shape[1]}x{shape[0]} ({shape[0] * shape[1]:,} pixels), "
+                        f"larger than wfviz reads ({MAX_PIXELS:,} pixels a frame, e.g. 8192x8192)")
     if min(shape) < minimum:
         raise ClipError(f"{source}: frames are {shape[1]}x{shape[0]}, smaller than the "
                         f"processing windows need (at least {minimum}x{minimum})")
@@ -142,10 +157,13 @@ class _ClipBase:
 
     def __init__(self, path: Path, name: str, fps: float, n_frames: int | None,
                  shape: tuple[int, int], nan_as_zero: bool = False) -> None:
+        check_frame_size(shape, path, minimum=1)  # too large: refused before any frame is read
         self.path = path
         self._name, self._fps, self._n_frames, self._shape = name, fps, n_frames, shape
         self.nan_as_zero = nan_as_zero
         self._nan_warned = False
+        #: float frames are multiplied by 2**gain_exponent (None: not set yet; see ``_rescale``)
+        self.gain_exponent: int | None = None
         #: frames left out with ``skip_bad_frames``: index -> problem
         self.skipped: dict[int, str] = {}
 
@@ -179,8 +197,34 @@ class _ClipBase:
             raise ClipError(f"{source}: frame {index} is {image.shape[1]}x{image.shape[0]}, "
                             f"expected {self._shape[1]}x{self._shape[0]}")
         if image.dtype.kind == "f":
-            image = self._finite(index, image, source)
+            image = self._rescale(index, self._finite(index, image, source), source)
         return Frame(index, index / self._fps, np.ascontiguousarray(image))
+
+    def _rescale(self, index: int, image: np.ndarray, source: str) -> np.ndarray:
+        """Float ``image`` times 2**k, k fixed by the first frame read (a note when k != 0).
+
+        Float clips come in any unit (1e-40 to 1e30 a grey level). The stages' arithmetic is
+        float32 (squares in variances underflow to 0 near 1e-20 and overflow near 1e19) and has
+        floors in grey levels (1e-6 for a noise sigma, ...), so frames whose spread lies outside
+        2**-8 .. 2**32 are brought to a spread of about 2**10, like integer data. A power of two
+        changes only the exponent: the values are exact, just in other units, and the tracks
+        (pixel positions) do not depend on it. Frames within the range are returned as read."""
+        if self.gain_exponent is None:
+            self.gain_exponent = _gain_exponent(image)
+            if self.gain_exponent:
+                warnings.warn(f"{source}: float frames rescaled by 2**{self.gain_exponent} (frame {index}'s "
+                              f"spread, {_spread(image):.3g}, is outside 2**{FLOAT_SPREAD[0]}..2**"
+                              f"{FLOAT_SPREAD[1]}); tracks are unaffected, recorded values are in the new "
+                              f"units", ClipNote, stacklevel=4)
+        if not self.gain_exponent:
+            return image
+        with np.errstate(over="ignore"):
+            scaled = np.ldexp(image, self.gain_exponent, dtype=image.dtype)
+        if not float(np.abs(scaled).max()) <= _MAX_SCALED:
+            raise ClipError(f"{source}: frame {index} holds values up to {float(np.abs(image).max()):.3g}, "
+                            f"too large at the clip's scale (x2**{self.gain_exponent}, set by the first "
+                            f"frame read; values must stay within 2**64 after it)")
+        return scaled
 
     def _finite(self, index: int, image: np.ndarray, source: str) -> np.ndarray:
         """``image`` with NaN/inf set to 0 if ``nan_as_zero`` (warned once), else ClipError."""
@@ -293,7 +337,8 @@ class NpyClip(_ClipBase):
 
     uint8, uint16 and float32 are kept; bool becomes uint8; every other integer or float
     type becomes float32 (exact for integers up to 2**24 in magnitude, so signed data keeps
-    its sign). Object, string, complex and structured arrays raise ``ClipError``.
+    its sign). Object, string, complex and structured arrays raise ``ClipError``. Float frames
+    far from the usual scale are rescaled by a power of two (``_ClipBase._rescale``).
     """
 
     def __init__(self, path: Path, fps: float | None = None, *, nan_as_zero: bool = False) -> None:
@@ -394,6 +439,26 @@ class VideoClip(_ClipBase):
         return n is not None and index < n - max(1, n // 200)
 
 
+def _spread(image: np.ndarray) -> float:
+    """A float frame's spread: its median absolute deviation, else (mostly constant) its largest
+    deviation from the median, else (constant) the magnitude of its value."""
+    x = image.astype(np.float64, copy=False).ravel()
+    med = float(np.median(x))
+    dev = np.abs(x - med)
+    return float(np.median(dev)) or float(dev.max()) or abs(med)
+
+
+def _gain_exponent(image: np.ndarray) -> int:
+    """k so that 2**k brings the spread of float ``image`` into range (0: already in range or
+    all zero); never so large that the frame's largest value passes 2**64."""
+    spread = _spread(image)
+    if spread == 0.0 or FLOAT_SPREAD[0] <= math.log2(spread) <= FLOAT_SPREAD[1]:
+        return 0
+    k = FLOAT_TARGET - math.frexp(spread)[1]
+    peak = float(np.abs(image.astype(np.float64, copy=False)).max())
+    return min(k, 64 - math.frexp(peak)[1])  # peak * 2**k < 2**64 (_MAX_SCALED)
+
+
 def _indices(start: int, stop: int | None, n: int | None) -> Iterable[int]:
     """Frame indices ``start <= index < stop``, clamped to ``n`` when it is known."""
     if start < 0 or (stop is not None and stop < 0):
@@ -425,20 +490,83 @@ def _frame_dtype(dtype: np.dtype, path: Path) -> np.dtype:
     raise ClipError(f"{path}: unsupported pixel type {dtype}")
 
 
+def display(text: object) -> str:
+    """``text`` (a path, a message) printable as UTF-8: bytes of a non-UTF-8 file name (held by
+    Python as lone surrogates, which cannot be encoded for output) shown as ``\\xff``."""
+    s = os.fspath(text) if isinstance(text, os.PathLike) else str(text)
+    try:
+        s.encode("utf-8")
+        return s
+    except UnicodeEncodeError:
+        try:
+            return s.encode("utf-8", "surrogateescape").decode("utf-8", "backslashreplace")
+        except UnicodeEncodeError:
+            return s.encode("utf-8", "backslashreplace").decode("utf-8")
+
+
+def _cv2_safe(path: Path) -> bool:
+    """Whether OpenCV can be given ``str(path)``: its bindings cannot convert a name that is not
+    valid UTF-8 (a crash, not an error), so such files are read by bytes or descriptor."""
+    try:
+        str(path).encode("utf-8")
+        return True
+    except UnicodeEncodeError:
+        return False
+
+
+def write_image(path: Path, image: np.ndarray) -> bool:
+    """``cv2.imwrite`` for any file name: encoded in memory (format from the suffix), written
+    by bytes. False if OpenCV cannot encode ``image``."""
+    ok, data = cv2.imencode(Path(path).suffix or ".png", image)
+    if not ok:
+        return False
+    data.tofile(path)
+    return True
+
+
+@contextmanager
+def opencv_name(path: Path) -> Iterator[str]:
+    """A name of ``path`` OpenCV can be given while the block runs (for writers, which pick the
+    container from the suffix): ``str(path)``, or for a name that is not valid UTF-8 a symlink
+    with a plain name in a private temporary folder, removed on exit. The file is created first
+    so that the link is not dangling."""
+    if _cv2_safe(path):
+        yield str(path)
+        return
+    import tempfile
+
+    target = os.path.abspath(path)
+    os.close(os.open(target, os.O_WRONLY | os.O_CREAT, 0o666))
+    with tempfile.TemporaryDirectory(prefix="wfviz-name-") as folder:
+        link = os.path.join(folder, "file" + (Path(path).suffix if _cv2_safe(Path(path).suffix) else ""))
+        os.symlink(target, link)
+        yield link
+
+
 def _page_count(path: Path) -> int:
     """Pages of a (TIFF) image file (1 if OpenCV cannot tell)."""
     try:
         with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):
-            return int(cv2.imcount(str(path)))
-    except (cv2.error, AttributeError):
+            if _cv2_safe(path):
+                return int(cv2.imcount(str(path)))
+            ok, pages = cv2.imdecodemulti(np.fromfile(path, np.uint8), cv2.IMREAD_UNCHANGED)
+            return len(pages) if ok else 1
+    except (cv2.error, AttributeError, OSError, ValueError):
         return 1
 
 
 def _read_image(path: Path, index: int) -> tuple[np.ndarray, bool]:
-    """Decode one image at full range and reduce it to 2-D luma; True if it was colour."""
+    """Decode one image at full range and reduce it to 2-D luma; True if it was colour.
+
+    The file is read by bytes and decoded in memory, so any file name works (OpenCV cannot be
+    given a name that is not valid UTF-8)."""
+    try:
+        data = np.fromfile(path, np.uint8)
+    except OSError as exc:
+        raise BadFrameError(f"{path}: cannot read image {index} ({exc.strerror or exc})") from None
     try:
         with _quiet(cv2.utils.logging.LOG_LEVEL_SILENT):  # the error below says it in one line
-            image = cv2.imread(str(path), cv2.IMREAD_UNCHANGED)
+            image = cv2.imdecode(data, cv2.IMREAD_UNCHANGED) if data.size else None
     except cv2.error:
         image = None
     if image is None or image.size == 0:
@@ -483,8 +611,22 @@ def _fourcc(code: float) -> str:
 
 
 def _capture(path: Path, luma: LumaMode = "bgr") -> cv2.VideoCapture:
-    """An open capture of ``path``, returning the raw first plane unless ``luma`` is "bgr"."""
-    cap = cv2.VideoCapture(str(path))
+    """An open capture of ``path``, returning the raw first plane unless ``luma`` is "bgr".
+
+    A path that is not valid UTF-8 (which OpenCV cannot be given) is opened by bytes and handed
+    over as ``/proc/self/fd/N``, closed once the capture has opened its own; where there is no
+    /proc, ClipError."""
+    if _cv2_safe(path):
+        cap = cv2.VideoCapture(str(path))
+    else:
+        if not os.path.isdir("/proc/self/fd"):
+            raise ClipError(f"{path}: cannot open a video whose name is not valid UTF-8 on this "
+                            f"system; rename it")
+        fd = os.open(path, os.O_RDONLY)
+        try:
+            cap = cv2.VideoCapture(f"/proc/self/fd/{fd}")
+        finally:
+            os.close(fd)
     if not cap.isOpened():
         cap.release()
         raise ClipError(f"{path}: cannot decode video (truncated or unsupported codec)")

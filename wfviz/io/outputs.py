@@ -156,10 +156,8 @@ def write_atomically(path: Path, data: bytes | str) -> None:
     tmp = temp_path(path)
     try:
         try:
-            if isinstance(data, str):
-                tmp.write_text(data, encoding="utf-8")
-            else:
-                tmp.write_bytes(data)
+            # text naming a file whose name is not UTF-8 keeps that name's own bytes
+            tmp.write_bytes(data.encode("utf-8", "surrogateescape") if isinstance(data, str) else data)
         except OSError as exc:
             raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
         replace_into(tmp, path)

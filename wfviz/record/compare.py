@@ -78,7 +78,8 @@ class CompareRecorder:
         self.rec = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
         image_of = [self.labels[g] for g in groups]
         try:
-            self.rec.save(self.temp, default_blueprint=compare_blueprint(self.labels, image_of, truth))
+            self.rec.set_sinks(rr.FileSink(str(self.temp)),  # not save(): a name that is not UTF-8 works
+                               default_blueprint=compare_blueprint(self.labels, image_of, truth))
         except BaseException:
             self.temp.unlink(missing_ok=True)
             raise

@@ -14,7 +14,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from wfviz.evaluate import FrameErrors
-from wfviz.io.clip import ClipNote
+from wfviz.io.clip import ClipNote, display
 from wfviz.io.frames import Frame
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
 from wfviz.record.live import Live, sinks
@@ -271,7 +271,7 @@ class Recorder:
         self.columns = ColumnBuffer(self.rec)
         self._now = (0, 0.0)  # (frame, time) being logged
         self.rec.log("config", rr.TextDocument(
-            f"# wfviz {tracker}\n\nSource: `{source}`\n\n```toml\n{config_text}\n```",
+            f"# wfviz {tracker}\n\nSource: `{display(source)}`\n\n```toml\n{config_text}\n```",
             media_type=rr.MediaType.MARKDOWN), static=True)
 
     # -- layout ---------------------------------------------------------------------------
@@ -355,7 +355,7 @@ class Recorder:
 
     def text(self, message: str, level: str = "INFO", path: str = "log") -> None:
         """A ``TextLog`` line at the current frame (sent in columns)."""
-        self.columns.text(path, *self._now, message, level)
+        self.columns.text(path, *self._now, display(message), level)
 
     def log_kalman(self, result: FrameResult, innovations: dict[int, np.ndarray] | None = None) -> None:
         """``kalman/<id>/innovation`` (of the tracks updated this frame, when the tracker reports

@@ -39,7 +39,8 @@ def record_study(path: Path, trials: list[Any], settings: StudySettings) -> Path
     tmp = temp_path(path)
     rec = rr.RecordingStream(APPLICATION_ID)
     try:
-        rec.save(tmp, default_blueprint=_blueprint(settings, roles))
+        # a file sink, not rec.save: save() passes the name as a str Rust cannot take when it is not UTF-8
+        rec.set_sinks(rr.FileSink(str(tmp)), default_blueprint=_blueprint(settings, roles))
         done = []
         for t in sorted(trials, key=lambda t: t.number):
             rec.set_time("trial", sequence=t.number)

@@ -16,6 +16,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from wfviz.io.clip import write_image
 from wfviz.io.frames import Frame
 from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.folder import write_folder
@@ -284,7 +285,7 @@ class DemoClip(GeneratedClip):
 
         def fill(tmp: Path) -> None:
             for frame in self.frames(start, stop):
-                if not cv2.imwrite(str(tmp / f"frame_{frame.index:06d}.png"), frame.image):
+                if not write_image(tmp / f"frame_{frame.index:06d}.png", frame.image):
                     raise OSError(f"could not write frame {frame.index} to {tmp}")
             self.write_truth_csv(tmp / "truth.csv", start, stop)
 

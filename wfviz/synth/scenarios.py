@@ -18,6 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
+from wfviz.io.clip import opencv_name, write_image
 from wfviz.io.frames import Frame
 from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
@@ -448,8 +449,9 @@ def _avi_scale(clip: ScenarioClip) -> tuple[float, float]:
 def _open_avi(path: Path, fps: float, shape: tuple[int, int]) -> tuple[cv2.VideoWriter, str]:
     """An 8-bit grey AVI writer: lossless FFV1 if available, else MJPG."""
     for codec in ("FFV1", "MJPG"):
-        writer = cv2.VideoWriter(str(path), cv2.VideoWriter_fourcc(*codec), fps,
-                                 (shape[1], shape[0]), isColor=False)
+        with opencv_name(path) as name:  # the writer has the file open when the link goes
+            writer = cv2.VideoWriter(name, cv2.VideoWriter_fourcc(*codec), fps,
+                                     (shape[1], shape[0]), isColor=False)
         if writer.isOpened():
             return writer, codec
         writer.release()
@@ -476,7 +478,7 @@ def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
             meta["avi"] = {"file": avi_path.name, "codec": codec, "offset": offset, "gain": gain,
                            "map": "u8 = clip(round((u16 - offset) * gain), 0, 255)"}
         for frame in clip.frames():
-            if not cv2.imwrite(str(tmp / f"frame_{frame.index:06d}.png"), frame.image):
+            if not write_image(tmp / f"frame_{frame.index:06d}.png", frame.image):
                 raise OSError(f"could not write frame {frame.index} to {tmp}")
             if writer is not None:
                 u8 = np.clip(np.rint((frame.image - offset) * gain), 0, 255).astype(np.uint8)
@@ -485,9 +487,10 @@ def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
                 progress(frame.index + 1)
         if writer is not None:
             writer.release()
-            cap = cv2.VideoCapture(str(avi_path))
-            count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
-            cap.release()
+            with opencv_name(avi_path) as name:
+                cap = cv2.VideoCapture(name)
+                count = int(cap.get(cv2.CAP_PROP_FRAME_COUNT))
+                cap.release()
             if count != clip.n_frames:
                 raise OSError(f"{avi_path.name}: reads back {count} frames, not {clip.n_frames}")
         with (tmp / "truth.csv").open("w", newline="") as fh:
