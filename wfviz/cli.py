@@ -429,18 +429,22 @@ def eval_(
 def screenshot(
     recording: Annotated[Path, typer.Argument(help="Recording (.rrd) to render.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
-    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (default: last).")] = None,
+    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show, within the recording's frames (default: last).")] = None,
     width: Annotated[int, typer.Option("--width", min=200)] = 1600,
     height: Annotated[int, typer.Option("--height", min=200)] = 1000,
 ) -> None:
     """Render a recording in the real Rerun viewer, headless, with its default blueprint."""
-    from wfviz.record.screenshot import ScreenshotError, render_screenshot
+    from wfviz.record.screenshot import ScreenshotError, frame_range, render_screenshot
 
     if not recording.is_file():
         raise ValueError(f"{recording}: no such recording")
     if output.is_dir():
         raise OutputError(f"{output}: is a folder, expected a PNG file name")
     _guard_outputs(output, inputs=((recording, "the recording"),))
+    if frame is not None:
+        span = frame_range(recording)
+        if span is not None and not span[0] <= frame <= span[1]:
+            raise ValueError(f"--frame {frame}: {recording} holds frames {span[0]}-{span[1]}")
     try:
         render_screenshot(recording, output, frame=frame, width=width, height=height)
     except ScreenshotError as exc:
