@@ -2,10 +2,13 @@
 
 from __future__ import annotations
 
+import re
 import subprocess
 import sys
 import tempfile
 import time
+from collections.abc import Iterator
+from contextlib import contextmanager
 from pathlib import Path
 
 import pytest
@@ -201,3 +204,63 @@ def test_web_viewer_port_in_use_is_one_line(tmp_path: Path) -> None:
                      "--bind", "0.0.0.0", "--port", str(_free_port()), cwd=tmp_path, timeout=60)
     _one_line_error(proc, f"web viewer port {WEB_PORT}", "already in use")
     _nothing_written(tmp_path)
+
+
+@contextmanager
+def _listener(mode: str, seconds: float = 120.0) -> Iterator[int]:
+    """A loopback TCP port whose listener accepts every connection and then holds it without
+    reading or writing (``hold``: a viewer that never answers) or closes it at once
+    (``close``); the thread stops by itself after ``seconds`` or when the block ends."""
+    import socket
+    import threading
+
+    server = socket.socket()
+    server.bind(("127.0.0.1", 0))
+    server.listen(16)
+    server.settimeout(0.2)
+    stop = threading.Event()
+    held: list[socket.socket] = []
+
+    def serve() -> None:
+        end = time.monotonic() + seconds
+        while not stop.is_set() and time.monotonic() < end:
+            try:
+                conn, _ = server.accept()
+            except OSError:
+                continue
+            if mode == "close":
+                conn.close()
+            else:
+                held.append(conn)
+
+    thread = threading.Thread(target=serve, daemon=True)
+    thread.start()
+    try:
+        yield server.getsockname()[1]
+    finally:
+        stop.set()
+        thread.join(5)
+        for conn in held:
+            conn.close()
+        server.close()
+
+
+@pytest.mark.parametrize("mode", ["hold", "close"])
+def test_a_viewer_that_never_answers_costs_at_most_the_bound(tmp_path: Path, mode: str) -> None:
+    """Streaming to a listener that accepts and never answers (or closes at once): the run
+    ends, waiting for the live side at most LIVE_WAIT_SECONDS, with the whole file under its
+    name and one note."""
+    from wfviz.record.live import LIVE_WAIT_SECONDS
+
+    with _listener(mode) as port:
+        proc = wfviz("record", "synth:lowsnr-tbd:0", "--tracker", "tbd", "--stop", "5", "-o", "bh.rrd",
+                     "--connect", f"rerun+http://127.0.0.1:{port}/proxy", cwd=tmp_path,
+                     timeout=LIVE_WAIT_SECONDS + 60)
+    assert proc.returncode == 0, proc.stderr
+    notes = [ln for ln in proc.stderr.splitlines() if ln.startswith("wfviz: note: live view:")]
+    assert len(notes) == 1 and notes[0].endswith("the file is complete"), proc.stderr
+    seconds = float(re.search(r"5 frames in ([0-9.]+) s", proc.stdout).group(1))  # the run, end included
+    assert seconds < LIVE_WAIT_SECONDS + 5, proc.stdout
+    assert _frames(tmp_path / "bh.rrd") == list(range(5))
+    assert RrdReader(tmp_path / "bh.rrd").store() is not None  # the footer is written
+    assert not [p for p in tmp_path.iterdir() if p.name.endswith(".wfviz-part")]

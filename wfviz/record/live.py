@@ -1,15 +1,22 @@
-"""Watching a recording while it is written: the .rrd file sink plus a live one, for ``wfviz
-record --spawn | --connect URL | --serve``. The file is written whatever happens to the live
-side (a viewer closed or never reached only loses the live view)."""
+"""Watching a recording while it is written, for ``wfviz record --spawn | --connect URL |
+--serve``: the .rrd file has a recording stream of its own, and :class:`LiveMirror` repeats
+every call on a second stream, the live one, from a worker thread. The file never waits on the
+network: a viewer closed, never reached or stalled (one that accepts and never reads applies
+back-pressure to Rerun's gRPC client, which would otherwise hold up a shared stream, file sink
+included) only loses the live view, and costs at most ``LIVE_WAIT_SECONDS`` at the end, after
+the file is complete."""
 
 from __future__ import annotations
 
 import errno
 import ipaddress
+import queue
 import re
 import socket
+import threading
+import time
 from dataclasses import dataclass
-from pathlib import Path
+from typing import Any
 from urllib.parse import urlsplit
 
 import rerun as rr
@@ -18,6 +25,8 @@ MODES = ("spawn", "connect", "serve")
 DEFAULT_PORT = 9876
 WEB_PORT = 9090
 SCHEMES = ("rerun", "rerun+http", "rerun+https")
+LIVE_WAIT_SECONDS = 10.0  # at the end, after the file is complete: the live side's time, at most
+LIVE_QUEUE = 4096  # calls the live stream may lag behind the file before the live view stops
 _HOST_NAME = re.compile(r"(?=.{1,253}$)[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?"
                         r"(?:\.[A-Za-z0-9_](?:[A-Za-z0-9_-]{0,61}[A-Za-z0-9_])?)*\.?")
 _URL_HINT = "expected rerun+http://HOST:PORT/proxy"
@@ -160,24 +169,105 @@ def _check_free(addr: str, port: int, what: str, hint: str, bind: str | None = N
         raise ValueError(f"{what}: cannot listen on {addr} ({exc.strerror or exc})") from None
 
 
-def sinks(path: Path, live: Live | None) -> list[object]:
-    """The file sink for ``path`` and, with ``live``, the live one (starting a viewer or a
-    server first when asked). Rerun refusing the live side: ValueError naming the option."""
-    out: list[object] = [rr.FileSink(str(path))]
-    if live is None:
-        return out
+def live_sink(live: Live) -> Any:
+    """The live sink (starting a viewer or a server first when asked); Rerun refusing it:
+    ValueError naming the option."""
     try:
         if live.mode == "spawn":
             rr.spawn(port=live.port, connect=False, hide_welcome_screen=True)
-            out.append(rr.GrpcSink(live.grpc_url))
-        elif live.mode == "connect":
-            out.append(rr.GrpcSink(live.grpc_url))
-        else:  # Rerun parses "{bind_ip}:{port}": an IPv6 address needs its brackets
-            out.append(rr.GrpcServerSink(bind_ip=_url_host(live.bind), port=live.port))
-            if live.public:
-                rr.serve_web_viewer(web_port=live.web_port, open_browser=False, connect_to=live.grpc_url)
+            return rr.GrpcSink(live.grpc_url)
+        if live.mode == "connect":
+            return rr.GrpcSink(live.grpc_url)
+        sink = rr.GrpcServerSink(bind_ip=_url_host(live.bind), port=live.port)  # Rerun parses "{ip}:{port}"
+        if live.public:
+            rr.serve_web_viewer(web_port=live.web_port, open_browser=False, connect_to=live.grpc_url)
+        return sink
     except (RuntimeError, OSError) as exc:
         option = {"spawn": "--spawn", "connect": f"--connect {live.url}"}.get(live.mode, f"--serve on {live.bind}")
         raise ValueError(f"{option}: {' '.join(str(exc).split())}") from None
-    return out
 
+
+class LiveMirror:
+    """A recording stream (``file``) whose calls (``log``, ``send_columns``, ``set_time``,
+    ``send_blueprint``) are repeated in order on ``live`` by a worker thread, each caller
+    thread's time context kept apart. Falling ``LIVE_QUEUE`` calls behind, or a live call
+    failing, stops the live view (:attr:`problem` says why); the file goes on."""
+
+    def __init__(self, file: rr.RecordingStream, live: rr.RecordingStream) -> None:
+        self.file, self.live = file, live
+        self.problem: str | None = None
+        self._flush_seconds = LIVE_WAIT_SECONDS
+        self._queue: queue.Queue[tuple[int, str, tuple, dict] | None] = queue.Queue(LIVE_QUEUE)
+        self._done = threading.Event()
+        self._worker = threading.Thread(target=self._replay, name="wfviz-live", daemon=True)
+        self._worker.start()
+
+    def log(self, *args: Any, **kwargs: Any) -> None:
+        self.file.log(*args, **kwargs)
+        self._mirror("log", args, kwargs)
+
+    def send_columns(self, *args: Any, **kwargs: Any) -> None:
+        self.file.send_columns(*args, **kwargs)
+        self._mirror("send_columns", args, kwargs)
+
+    def set_time(self, *args: Any, **kwargs: Any) -> None:
+        self.file.set_time(*args, **kwargs)
+        self._mirror("set_time", args, kwargs)
+
+    def send_blueprint(self, *args: Any, **kwargs: Any) -> None:
+        self.file.send_blueprint(*args, **kwargs)
+        self._mirror("send_blueprint", args, kwargs)
+
+    def _mirror(self, name: str, args: tuple, kwargs: dict) -> None:
+        if self.problem is not None:
+            return
+        try:
+            self._queue.put_nowait((threading.get_ident(), name, args, kwargs))
+        except queue.Full:
+            self.problem = f"the viewer fell {LIVE_QUEUE} calls behind, stopped streaming to it"
+
+    def _replay(self) -> None:
+        """The worker: every queued call on ``live``, then (at the end) flush and disconnect."""
+        times: dict[int, dict[str, dict]] = {}
+        current: int | None = None
+        while (item := self._queue.get()) is not None:
+            if self.problem is not None:
+                continue
+            tid, name, args, kwargs = item
+            try:
+                if name == "set_time":
+                    times.setdefault(tid, {})[args[0]] = kwargs
+                    if tid != current:
+                        continue  # applied when this thread's next call is replayed
+                elif tid != current:  # another caller thread: its own time context
+                    self.live.reset_time()
+                    for timeline, when in times.get(tid, {}).items():
+                        self.live.set_time(timeline, **when)
+                    current = tid
+                getattr(self.live, name)(*args, **kwargs)
+            except Exception as exc:  # noqa: BLE001 - the live side only
+                self.problem = " ".join(str(exc).split()) or type(exc).__name__
+        try:
+            self.live.flush(timeout_sec=self._flush_seconds)
+        except Exception as exc:  # noqa: BLE001 - e.g. "Flush timed out"
+            self.problem = self.problem or " ".join(str(exc).split())
+        self.live.disconnect()
+        self._done.set()
+
+    def end(self) -> str | None:
+        """Let the live side take what is queued, flush and close, within
+        ``LIVE_WAIT_SECONDS`` in all. Returns its problem (one line), or None. If it is still
+        stuck then (a viewer that accepts and never reads holds Rerun's gRPC client), it is
+        left to its daemon thread and Rerun's exit hook, which would wait for it with no time
+        limit, is dropped."""
+        end = time.monotonic() + LIVE_WAIT_SECONDS
+        self._flush_seconds = max(0.5, LIVE_WAIT_SECONDS - 2.0)
+        try:
+            self._queue.put(None, timeout=LIVE_WAIT_SECONDS)
+            self._done.wait(max(0.0, end - time.monotonic()))
+        except queue.Full:
+            pass
+        if self._done.is_set():
+            return self.problem
+        rr.unregister_shutdown()
+        return self.problem or f"the viewer took nothing for {LIVE_WAIT_SECONDS:g} s, left it"
