@@ -150,6 +150,7 @@ def _ip(text: str) -> str | None:
 
 
 def _url_host(ip: str) -> str:
+    """``ip`` as the host part of a URL or of Rerun's ``"{ip}:{port}"`` (IPv6 in brackets)."""
     return f"[{ip}]" if ":" in ip else ip
 
 
