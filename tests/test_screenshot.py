@@ -200,3 +200,69 @@ def test_sigterm_ends_the_headless_viewer_too(tmp_path: Path) -> None:
         time.sleep(0.1)
     assert not any(_running(v) for v in viewers)
     assert not (tmp_path / "s.png").exists() and not list(tmp_path.glob(".s.png.*"))
+
+
+def test_frame_outside_the_recording_is_refused(tmp_path: Path) -> None:
+    """``--frame`` past the recording's frames: one line with the range, exit 2, no picture,
+    and no viewer started (so no Vulkan needed)."""
+    import subprocess
+    import sys
+
+    rrd = _make_rrd(tmp_path / "rec.rrd")
+    for frame in ("500", "20"):
+        proc = subprocess.run([sys.executable, "-m", "wfviz", "screenshot", str(rrd), "--frame", frame, "-o",
+                               str(tmp_path / "s.png")], capture_output=True, text=True, timeout=120)
+        lines = proc.stderr.strip().splitlines()
+        assert proc.returncode == 2 and len(lines) == 1, proc.stderr
+        assert f"--frame {frame}: {rrd} holds frames 0-19" in lines[0], proc.stderr
+        assert not list(tmp_path.glob("*.png")) and not list(tmp_path.glob(".s.png.*"))
+
+
+def test_frame_range_without_a_footer(tmp_path: Path) -> None:
+    """A recording without the footer's manifest: the range comes from its chunks."""
+    from wfviz.record.screenshot import frame_range
+
+    rec = rr.RecordingStream("wfviz_test")
+    rec.set_sinks(rr.FileSink(str(tmp_path / "nf.rrd"), write_footer=False))
+    for f in range(3, 9):
+        rec.set_time("frame", sequence=f)
+        rec.log("timing/total", rr.Scalars(float(f)))
+    rec.flush()
+    rec.disconnect()
+    assert frame_range(tmp_path / "nf.rrd") == (3, 8)
+    assert frame_range(_make_rrd(tmp_path / "rec.rrd")) == (0, 19)
+    assert frame_range(tmp_path / "rec.rrd", "nope") is None
+
+
+@needs_vulkan
+@pytest.mark.skipif(not Path("/proc/self/stat").exists(), reason="needs Linux /proc")
+def test_sigkill_ends_the_headless_viewer_too(tmp_path: Path) -> None:
+    """wfviz killed outright (no clean-up possible): its headless viewer dies with it."""
+    import signal
+    import subprocess
+    import sys
+    import time
+
+    rrd = _make_rrd(tmp_path / "x.rrd")
+    proc = subprocess.Popen([sys.executable, "-m", "wfviz", "screenshot", str(rrd), "-o", str(tmp_path / "s.png")],
+                            stdout=subprocess.DEVNULL, stderr=subprocess.DEVNULL)
+    viewers: list[int] = []
+    try:
+        deadline = time.monotonic() + 60
+        while not viewers:
+            assert proc.poll() is None and time.monotonic() < deadline, "wfviz ended before starting its viewer"
+            viewers = _children(proc.pid)
+            time.sleep(0.05)
+        proc.kill()
+        proc.wait(timeout=10)
+        end = time.monotonic() + 5
+        while any(_running(v) for v in viewers) and time.monotonic() < end:
+            time.sleep(0.1)
+        assert not any(_running(v) for v in viewers), "the viewer outlived wfviz"
+    finally:
+        proc.kill()
+        for v in viewers:  # on failure: do not leave it running
+            try:
+                os.killpg(v, signal.SIGKILL)
+            except OSError:
+                pass

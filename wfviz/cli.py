@@ -89,9 +89,9 @@ ExactEveryOpt = Annotated[int, typer.Option("--exact-every", min=0, help="Exact 
 JpegOpt = Annotated[int, typer.Option("--jpeg-quality", min=1, max=100, help="JPEG quality of the preview images.")]
 NoImagesOpt = Annotated[bool, typer.Option("--no-images", help="Log no images (overlays and scalars only).")]
 SpawnOpt = Annotated[bool, typer.Option("--spawn", help="Also stream the run live to a Rerun viewer (started, or the one already on --port).")]
-ConnectOpt = Annotated[Optional[str], typer.Option("--connect", help="Also stream the run live to a running viewer or server at this URL (rerun+http://HOST:PORT/proxy).", show_default=False)]
+ConnectOpt = Annotated[Optional[str], typer.Option("--connect", help="Also stream the run live to a running viewer or server at this URL (rerun+http://HOST:PORT/proxy, or rerun:// / rerun+https://; PORT 1-65535).", show_default=False)]
 ServeOpt = Annotated[bool, typer.Option("--serve", help="Also serve the run live while it lasts: a gRPC server on --bind:--port for a native or web viewer (with --bind 0.0.0.0 a web viewer is hosted on port 9090 too).")]
-BindOpt = Annotated[str, typer.Option("--bind", help="With --serve: the address to serve on (0.0.0.0: every interface).")]
+BindOpt = Annotated[str, typer.Option("--bind", help="With --serve: the IP address or host name to serve on (0.0.0.0 or ::: every interface, with a web viewer on port 9090); checked, with the ports, before the run starts.")]
 PortOpt = Annotated[int, typer.Option("--port", min=1, max=65535, help="With --spawn or --serve: the viewer's or server's gRPC port.")]
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
@@ -200,9 +200,9 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int): 
         raise ValueError(f"{' and '.join(asked)}: choose one live view")
     if not asked:
         return None
-    from wfviz.record.live import Live
+    from wfviz.record.live import live_view
 
-    return Live("spawn" if spawn else "serve" if serve else "connect", url=connect, bind=bind, port=port)
+    return live_view("spawn" if spawn else "serve" if serve else "connect", url=connect, bind=bind, port=port)
 
 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
@@ -456,18 +456,22 @@ def eval_(
 def screenshot(
     recording: Annotated[Path, typer.Argument(help="Recording (.rrd) to render.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
-    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (default: last).")] = None,
+    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show, within the recording's frames (default: last).")] = None,
     width: Annotated[int, typer.Option("--width", min=200, help="Image width in pixels.")] = 1600,
     height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels.")] = 1000,
 ) -> None:
     """Render a recording in the real Rerun viewer, headless, with its default blueprint."""
-    from wfviz.record.screenshot import ScreenshotError, render_screenshot
+    from wfviz.record.screenshot import ScreenshotError, frame_range, render_screenshot
 
     if not recording.is_file():
         raise ValueError(f"{recording}: no such recording")
     if output.is_dir():
         raise OutputError(f"{output}: is a folder, expected a PNG file name")
     _guard_outputs(output, inputs=((recording, "the recording"),))
+    if frame is not None:
+        span = frame_range(recording)
+        if span is not None and not span[0] <= frame <= span[1]:
+            raise ValueError(f"--frame {frame}: {recording} holds frames {span[0]}-{span[1]}")
     try:
         render_screenshot(recording, output, frame=frame, width=width, height=height)
     except ScreenshotError as exc:

@@ -141,7 +141,10 @@ class RecordingSink:
             rec.log_message(f"interrupted by {name} after {end.frames} frames", level="WARN")
         with self._errors():
             rec.close()
-        replace_into(self.temp, self.path)
+        try:
+            replace_into(self.temp, self.path)
+        finally:
+            rec.end_live()  # a live view lost or stalled waits only once the file is in place
 
     def abort(self) -> None:
         try:
@@ -149,6 +152,7 @@ class RecordingSink:
         except Exception:  # noqa: BLE001 - the file is removed anyway
             pass
         self.temp.unlink(missing_ok=True)
+        self.recorder.end_live()
 
     @contextmanager
     def _errors(self) -> Iterator[None]:

@@ -17,7 +17,7 @@ from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote, display
 from wfviz.io.frames import Frame
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
-from wfviz.record.live import Live, sinks
+from wfviz.record.live import Live, LiveMirror, live_sink
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
@@ -28,7 +28,6 @@ TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
 TRUTH_COLOR = (255, 255, 255, 200)
 TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
-LIVE_FLUSH_SECONDS = 10.0  # waiting for a live viewer at the end, at most
 EVENT_LEVELS = {EventKind.BORN: "DEBUG", EventKind.DELETED: "WARN"}  # others INFO; a tentative track's deletion: DEBUG
 
 
@@ -252,14 +251,24 @@ class Recorder:
         ``raw_image``: log the raw frame (False: the owner logs it once); ``shared_images``:
         image entities another run of the same front end logs instead; ``live``: stream to a
         viewer or serve the run as well as writing the file (:mod:`wfviz.record.live`)."""
-        self._owner = stream is None
+        self._file: rr.RecordingStream | None = None
         if stream is None:
-            self.rec: rr.RecordingStream | RootedStream = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
-            self.rec.set_sinks(*sinks(path, live), default_blueprint=self.blueprint())
+            self._file = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
+            self._file.set_sinks(rr.FileSink(str(path)), default_blueprint=self.blueprint())
+            self.rec: rr.RecordingStream | RootedStream | LiveMirror = self._file
+            if live is not None:  # its own stream: the file never waits on the network
+                mirror = rr.RecordingStream(APPLICATION_ID, recording_id=self._file.get_recording_id())
+                try:
+                    mirror.set_sinks(live_sink(live), default_blueprint=self.blueprint())
+                except BaseException:
+                    self._file.disconnect()
+                    raise
+                self.rec = LiveMirror(self._file, mirror)
         else:
             self.rec = RootedStream(stream, root)
         self.raw_image = raw_image
         self.live = live
+        self._live_ended = False
         self.shared_images = shared_images
         self.images = ImageLog(self.rec, image_every, exact_every, jpeg_quality)
         self._noise_logged: object | None = None  # the noise estimate last logged as an image
@@ -486,20 +495,24 @@ class Recorder:
 
     def close(self) -> None:
         """Send the final default blueprint (per-track views), flush and close the file (a
-        recorder writing into another's ``stream`` only sends what it holds)."""
+        recorder writing into another's ``stream`` only sends what it holds). A live view is
+        still open then: :meth:`end_live` closes it (after the file is renamed into place)."""
         self.images.close()
         self.columns.flush()
-        if not self._owner:
+        if self._file is None:
             return
         ids = sorted(self.confirmed_ids)
         if ids:
             self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)
-        if self.live is None:
-            self.rec.flush()
-        else:  # a viewer gone or never reached must not hold up (or lose) the file
-            try:
-                self.rec.flush(timeout_sec=LIVE_FLUSH_SECONDS)
-            except RuntimeError as exc:
-                warnings.warn(f"live view: {' '.join(str(exc).split())}; the file is complete", ClipNote,
-                              stacklevel=2)
-        self.rec.disconnect()
+        self._file.flush()
+        self._file.disconnect()
+
+    def end_live(self) -> None:
+        """Close the live view (at most ``LIVE_WAIT_SECONDS``), saying in one note if it failed;
+        nothing without one, or a second time."""
+        if not isinstance(self.rec, LiveMirror) or self._live_ended:
+            return
+        self._live_ended = True
+        problem = self.rec.end()
+        if problem:
+            warnings.warn(f"live view: {problem}; the file is complete", ClipNote, stacklevel=2)

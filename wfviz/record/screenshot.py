@@ -8,6 +8,7 @@ process group, driven with :class:`rerun.experimental.ViewerClient`, and killed 
 
 from __future__ import annotations
 
+import ctypes
 import ctypes.util
 import os
 import shutil
@@ -17,15 +18,16 @@ import subprocess
 import sys
 import tempfile
 import time
+import warnings
 from pathlib import Path
-from typing import IO, TYPE_CHECKING
+from typing import IO, TYPE_CHECKING, Callable
 
 from wfviz.io.outputs import write_atomically
 
 if TYPE_CHECKING:
     from rerun.experimental import Timeline, ViewerClient
 
-__all__ = ["ScreenshotError", "render_screenshot"]
+__all__ = ["ScreenshotError", "frame_range", "render_screenshot"]
 
 _ICD_DIRS = ("/usr/share/vulkan/icd.d", "/usr/local/share/vulkan/icd.d", "/etc/vulkan/icd.d")
 _SETTLE_MAX_SHOTS = 8
@@ -70,7 +72,8 @@ def render_screenshot(
     ]  # fmt: skip
     with tempfile.TemporaryFile() as log:
         proc = subprocess.Popen(
-            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True
+            cmd, stdin=subprocess.DEVNULL, stdout=log, stderr=subprocess.STDOUT, env=env, start_new_session=True,
+            preexec_fn=_die_with_parent(),
         )
         try:
             client = _connect(proc, port, deadline, log)
@@ -80,6 +83,57 @@ def render_screenshot(
     out_png.parent.mkdir(parents=True, exist_ok=True)
     write_atomically(out_png, png)
     return out_png
+
+
+def frame_range(rrd: Path, timeline: str = "frame") -> tuple[int, int] | None:
+    """The first and last time of the sequence ``timeline`` in recording ``rrd``, from its
+    footer (no chunk data read), else by streaming its chunks; None if it has no such data or
+    cannot be read (the viewer then reports the problem)."""
+    from rerun.chunk import RrdReader
+
+    with warnings.catch_warnings():  # Rerun's note on a file without a footer
+        warnings.simplefilter("ignore")
+        reader = RrdReader(rrd)
+    try:  # the footer's manifest: one row per chunk, with the time range of each timeline
+        index = reader.store()._chunk_index().to_arrow()
+        starts, ends = index.column(f"{timeline}:start"), index.column(f"{timeline}:end")
+        pairs = [(a, b) for a, b in zip(starts.to_pylist(), ends.to_pylist()) if a is not None and b is not None]
+        return (int(min(a for a, _ in pairs)), int(max(b for _, b in pairs))) if pairs else None
+    except Exception:  # noqa: BLE001 - no footer (an older file), or the private index changed
+        pass
+    lo = hi = None
+    try:
+        for chunk in reader.stream():
+            batch = chunk.to_record_batch()
+            if chunk.is_static or timeline not in batch.schema.names:
+                continue
+            values = [v for v in batch.column(timeline).to_pylist() if v is not None]
+            if values:
+                lo = min(values) if lo is None else min(lo, *values)
+                hi = max(values) if hi is None else max(hi, *values)
+    except Exception:  # noqa: BLE001 - unreadable: left to the viewer
+        return None
+    return None if lo is None or hi is None else (int(lo), int(hi))
+
+
+def _die_with_parent() -> Callable[[], None] | None:
+    """For the viewer's ``preexec_fn`` on Linux: the kernel sends it SIGKILL when wfviz dies,
+    even by SIGKILL (``prctl(PR_SET_PDEATHSIG)``; it fires when the forking thread ends, here
+    the main thread). None elsewhere."""
+    if not sys.platform.startswith("linux"):
+        return None
+    try:
+        prctl = ctypes.CDLL(None, use_errno=True).prctl  # looked up before the fork
+    except (OSError, AttributeError):
+        return None
+    parent = os.getpid()
+
+    def preexec() -> None:
+        prctl(1, int(signal.SIGKILL), 0, 0, 0)  # 1: PR_SET_PDEATHSIG
+        if os.getppid() != parent:  # wfviz died before the call: nothing would send the signal
+            os._exit(1)
+
+    return preexec
 
 
 def _find_viewer() -> str:
