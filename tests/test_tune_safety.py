@@ -185,7 +185,9 @@ def test_a_resumed_study_runs_the_trials_of_an_uninterrupted_one(tmp_path: Path)
     cut = _start(["tune", CLIP, "--out", "C", *common], tmp_path)
     try:
         _wait_rows(tmp_path / "C" / "trials.csv", 2, cut)
-        time.sleep(0.3)  # into the third trial
+        deadline = time.time() + 120  # until the third trial writes its tracks: it is running
+        while time.time() < deadline and cut.poll() is None and not list((tmp_path / "C").glob(".work.*/.trial-2-*")):
+            time.sleep(0.01)
         cut.send_signal(signal.SIGINT)
         cut.communicate(timeout=120)
     finally:
