@@ -24,13 +24,13 @@ from wfviz.synth.scenarios import list_scenarios, make_scenario
 from wfviz.trackers import TRACKERS, load_tracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import write_block  # noqa: E402
+from doc_blocks import write_block
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "accuracy.md"
 BEGIN, END = "<!-- scenarios:begin -->", "<!-- scenarios:end -->"
 
 
-def truth_points(clip) -> tuple[dict, dict]:  # noqa: ANN001
+def truth_points(clip) -> tuple[dict, dict]:
     """(visible, hidden) {frame: [(target_id, x, y)]} from a scenario's truth rows."""
     shown: dict = defaultdict(list)
     hidden: dict = defaultdict(list)

@@ -19,18 +19,18 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load thei
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import platform  # noqa: E402
-import sys  # noqa: E402
-from pathlib import Path  # noqa: E402
+import platform
+import sys
+from pathlib import Path
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from wfviz.trackers.fusion.config import FusionConfig  # noqa: E402
-from wfviz.trackers.fusion import FusionTracker  # noqa: E402
+from wfviz.trackers.fusion.config import FusionConfig
+from wfviz.trackers.fusion import FusionTracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_timing import bench_args, bench_frames, time_steps  # noqa: E402
+from step_timing import bench_args, bench_frames, time_steps
 
 STAGES = ["defects", "mask", "horizon", "windows", "suppress", "detect", "associate", "kalman", "total"]
 

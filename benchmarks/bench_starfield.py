@@ -19,21 +19,21 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV load thei
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import platform  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from pathlib import Path  # noqa: E402
+import platform
+import sys
+import time
+from pathlib import Path
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from wfviz.trackers.starfield.config import StarfieldConfig  # noqa: E402
-from wfviz.io.frames import Frame  # noqa: E402
-from wfviz.trackers.starfield import segmentation as seg  # noqa: E402
-from wfviz.trackers.starfield import StarfieldTracker  # noqa: E402
+from wfviz.trackers.starfield.config import StarfieldConfig
+from wfviz.io.frames import Frame
+from wfviz.trackers.starfield import segmentation as seg
+from wfviz.trackers.starfield import StarfieldTracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from step_timing import bench_args, bench_frames, time_steps  # noqa: E402
+from step_timing import bench_args, bench_frames, time_steps
 
 STAGES = ["segment", "register", "candidates", "chains", "resegment", "total"]
 PAPER_MS = 768.7  # the paper's mean per 1024x1024 frame (MATLAB-era, AMD dual core 2.3 GHz)

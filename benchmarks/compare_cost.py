@@ -29,7 +29,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import machine, write_block  # noqa: E402
+from doc_blocks import machine, write_block
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
 CLIP = "fov70-four-targets"

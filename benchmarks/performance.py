@@ -29,29 +29,30 @@ os.environ.setdefault("OMP_NUM_THREADS", "1")  # before numpy / OpenCV start the
 os.environ.setdefault("OPENBLAS_NUM_THREADS", "1")
 os.environ.setdefault("MKL_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import importlib.metadata as md  # noqa: E402
-import sys  # noqa: E402
-import tempfile  # noqa: E402
-import time  # noqa: E402
-import warnings  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import importlib.metadata as md
+import sys
+import tempfile
+import time
+import warnings
+from pathlib import Path
 
-import cv2  # noqa: E402
-import numpy as np  # noqa: E402
+import cv2
+import numpy as np
 
-from wfviz.config import config_to_toml  # noqa: E402
-from wfviz.io.clip import open_clip  # noqa: E402
-from wfviz.io.frames import Frame  # noqa: E402
-from wfviz.synth.clip import MemoryClip  # noqa: E402
-from wfviz.run import run  # noqa: E402
-from wfviz.synth.demo import demo_clip  # noqa: E402
-from wfviz.synth.scenarios import make_scenario  # noqa: E402
-from wfviz.trackers import make_tracker  # noqa: E402
+from wfviz.config import config_to_toml
+from wfviz.io.clip import open_clip
+from wfviz.io.frames import Frame
+from wfviz.synth.clip import MemoryClip
+from wfviz.record_options import RecorderOptions
+from wfviz.run import run
+from wfviz.synth.demo import demo_clip
+from wfviz.synth.scenarios import make_scenario
+from wfviz.trackers import make_tracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import machine, write_block  # noqa: E402
-from step_timing import time_steps  # noqa: E402
+from doc_blocks import machine, write_block
+from step_timing import time_steps
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
 SECTIONS = ("trackers", "record", "decode", "peers")
@@ -120,7 +121,7 @@ def time_run(clip: MemoryClip, runs: int, record: dict | None, tmp: Path, stop: 
         csv, rrd = tmp / f"t{r}.csv", tmp / f"r{r}.rrd"
         options = None
         if record is not None:
-            options = dict(source=clip.name, config_text=config_to_toml(tracker.config), **record)
+            options = RecorderOptions(source=clip.name, config_text=config_to_toml(tracker.config), **record)
         t0 = time.perf_counter()
         run(clip, tracker, tracks_csv=csv, recording=rrd if record is not None else None,
             recorder_options=options, stop=stop)

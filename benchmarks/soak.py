@@ -26,7 +26,7 @@ from wfviz.synth.scenarios import make_scenario
 from wfviz.trackers import load_tracker, make_tracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import machine  # noqa: E402
+from doc_blocks import machine
 
 
 def rss_mb() -> tuple[float, float]:
@@ -50,7 +50,7 @@ def main() -> int:
     samples: list[dict] = []
     t0 = time.perf_counter()
 
-    def sample(frame, result) -> None:  # noqa: ANN001
+    def sample(frame, result) -> None:
         i = frame.index + 1
         if i % args.every and i != 1 and i != args.frames:
             return

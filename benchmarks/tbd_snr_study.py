@@ -26,23 +26,23 @@ import os
 
 os.environ.setdefault("OMP_NUM_THREADS", "1")
 
-import argparse  # noqa: E402
-import platform  # noqa: E402
-import sys  # noqa: E402
-import time  # noqa: E402
-from collections import defaultdict  # noqa: E402
-from pathlib import Path  # noqa: E402
+import argparse
+import platform
+import sys
+import time
+from collections import defaultdict
+from pathlib import Path
 
-import numpy as np  # noqa: E402
+import numpy as np
 
-from wfviz.evaluate import frame_errors  # noqa: E402
-from wfviz.io.frames import Frame  # noqa: E402
-from wfviz.run import run  # noqa: E402
-from wfviz.synth.scenarios import make_scenario  # noqa: E402
-from wfviz.trackers import make_tracker  # noqa: E402
+from wfviz.evaluate import frame_errors
+from wfviz.io.frames import Frame
+from wfviz.run import run
+from wfviz.synth.scenarios import make_scenario
+from wfviz.trackers import make_tracker
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import write_block  # noqa: E402
+from doc_blocks import write_block
 
 DOC = Path(__file__).resolve().parent.parent / "docs" / "accuracy.md"
 BEGIN, END = "<!-- tbd-snr:begin -->", "<!-- tbd-snr:end -->"
@@ -61,7 +61,7 @@ def score_clip(tracker_name: str, snr: float, seed: int, gate: float = 3.0) -> d
     counts: dict[int, int] = {}
     points: dict[int, list] = {}
 
-    def on_frame(frame, result) -> None:  # noqa: ANN001
+    def on_frame(frame, result) -> None:
         conf = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
         points[frame.index] = conf
         counts[frame.index] = int(getattr(result, "count", len(conf)))

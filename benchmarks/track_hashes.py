@@ -40,6 +40,7 @@ def clips(groups: list[str]) -> list[str]:
 
 def one(job: tuple[str, str, int | None]) -> str:
     tracker, clip, stop = job
+    import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
     from wfviz.io.clip import open_clip
     from wfviz.run import run
     from wfviz.trackers import make_tracker

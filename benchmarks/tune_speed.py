@@ -26,7 +26,7 @@ import time
 from pathlib import Path
 
 sys.path.insert(0, str(Path(__file__).resolve().parent))
-from doc_blocks import machine, write_block  # noqa: E402
+from doc_blocks import machine, write_block
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "tuning.md"
 SPEED_CLIPS = ["synth:fov70-maneuver:0", "synth:fov70-four-targets:0"]

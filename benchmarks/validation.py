@@ -96,7 +96,7 @@ def apply_patches(patches: list[str]) -> None:
         setattr(importlib.import_module(mod), const, new)
 
 
-def load_with(tracker: str, config: str | None, settings: list[str]):  # noqa: ANN201
+def load_with(tracker: str, config: str | None, settings: list[str]):
     """The tracker's configuration with ``section.key=value`` settings applied."""
     import dataclasses
     import tomllib
@@ -119,6 +119,7 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
     """Track one clip in-process and score it (confirmed tracks, the group's gate)."""
     import numpy as np
 
+    import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
     from wfviz.io.clip import open_clip
     from wfviz.evaluate import read_truth
     from wfviz.run import run
@@ -136,7 +137,7 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
         truth = read_truth(job.truth)
     rows: list[tuple[int, int, float, float]] = []
 
-    def outside(frame, result) -> None:  # noqa: ANN001
+    def outside(frame, result) -> None:
         h, w = frame.image.shape
         for t in result.tracks:
             if not (-0.5 <= t.x <= w - 0.5 and -0.5 <= t.y <= h - 0.5):

@@ -15,23 +15,9 @@ import pytest
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
-from test_signals import verify
+from conftest import RNG, H, W, noise, verify
 from wfviz.cli import app
 from wfviz.io.clip import ClipError
-
-H, W = 32, 40  # above the 16x16 minimum, small enough to be quick
-RNG = np.random.default_rng(7)
-
-
-def noise(dtype: type = np.uint16, shape: tuple[int, ...] = (H, W)) -> np.ndarray:
-    """Noise of frames (..., rows, columns), each with a bright pixel at a random place (a
-    detection in every frame: frames without any make the recorder warn about empty values)."""
-    image = RNG.integers(100, 120, shape).astype(dtype)
-    frames = image.reshape(-1, *shape[-2:])
-    for f in frames:
-        f[RNG.integers(2, shape[-2] - 2), RNG.integers(2, shape[-1] - 2)] = 250
-    return frames.reshape(shape)
-
 
 def folder(path: Path, images: dict[str, np.ndarray]) -> Path:
     path.mkdir()
@@ -49,7 +35,7 @@ def video(path: Path, n: int = 30) -> Path:
     return path
 
 
-def cli(tmp_path: Path, *args: str, debug: bool = False):  # noqa: ANN201
+def cli(tmp_path: Path, *args: str, debug: bool = False):
     out = tmp_path / "out"
     argv = (["--debug"] if debug else []) + [args[0], *args[1:]]
     if args[0] == "track" and "--tracks" not in args:
@@ -65,7 +51,7 @@ def leftovers(tmp_path: Path) -> list[Path]:
     return sorted(out.rglob("*")) if out.exists() else []
 
 
-def assert_error(result, tmp_path: Path, *fragments: str) -> str:  # noqa: ANN001
+def assert_error(result, tmp_path: Path, *fragments: str) -> str:
     """Exit 2, stderr one line ``wfviz: error: ...`` containing ``fragments``, no outputs."""
     lines = result.stderr.strip().splitlines()
     assert result.exit_code == 2, (result.exit_code, result.stderr, result.exception)
@@ -77,7 +63,7 @@ def assert_error(result, tmp_path: Path, *fragments: str) -> str:  # noqa: ANN00
     return lines[0]
 
 
-def warnings_of(result) -> list[str]:  # noqa: ANN001
+def warnings_of(result) -> list[str]:
     return [ln for ln in result.stderr.splitlines() if ln.startswith(("wfviz: warning:", "wfviz: note:"))]
 
 

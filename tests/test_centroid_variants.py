@@ -16,6 +16,7 @@ from wfviz.stages.centroid import (
     position_crb,
 )
 from wfviz.synth.psf import add_gaussian_spot, gaussian_spot_image
+from wfviz.trackers.gewc.config import GEWCConfig
 
 NEW_METHODS = ("gewc-weighted", "gaussian")
 
@@ -106,10 +107,10 @@ def test_measure_and_config_accept_every_new_method(method):
     r = measure(res, labels, 1, (11.4, 12.7), 9, 3.0, method)
     assert r is not None and math.hypot(r.x - 11.4, r.y - 12.7) < 0.05
     assert r.weights.shape == (8,)
-    assert config_from_dict({"centroid": {"method": method}}).centroid.method == method
+    assert config_from_dict({"centroid": {"method": method}}, GEWCConfig).centroid.method == method
 
 
 def test_faithful_gewc_stays_the_default():
-    assert config_from_dict({}).centroid.method == "gewc"
+    assert config_from_dict({}, GEWCConfig).centroid.method == "gewc"
     with pytest.raises(ConfigError):
-        config_from_dict({"centroid": {"method": "gauss"}})
+        config_from_dict({"centroid": {"method": "gauss"}}, GEWCConfig)

@@ -3,8 +3,6 @@
 from __future__ import annotations
 
 import csv
-import subprocess
-import sys
 import tomllib
 from collections import defaultdict
 from pathlib import Path
@@ -13,17 +11,13 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from conftest import wfviz
 from wfviz.config import config_from_dict
 from wfviz.evaluate import read_points, score_targets
 from wfviz.trackers.gewc.config import GEWCConfig
 
 N_FRAMES = 120  # covers the crossing (frames 73-83) and target 4's birth (frame 30)
 STAGES = ["defects", "mask", "horizon", "suppress", "detect", "associate", "centroid", "kalman", "total"]
-
-
-def wfviz(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=300)
 
 
 def rrd_index(path: Path) -> tuple[dict[str, set[int]], set[str]]:
@@ -154,7 +148,7 @@ def test_default_output_name_and_track_command(tmp_path):
 def test_config_prints_loadable_defaults(tmp_path):
     proc = wfviz("config", cwd=tmp_path)
     assert proc.returncode == 0
-    assert config_from_dict(tomllib.loads(proc.stdout)) == GEWCConfig()
+    assert config_from_dict(tomllib.loads(proc.stdout), GEWCConfig) == GEWCConfig()
     assert "q = 0.2" in proc.stdout and "r = 0.4" in proc.stdout and "confirm_hits = 6" in proc.stdout
 
 

@@ -8,6 +8,7 @@ import cv2
 import numpy as np
 import pytest
 
+from conftest import write_folder
 from wfviz.io.clip import ClipError, ImageFolderClip, NpyClip, VideoClip, _choose_luma, open_clip
 from wfviz.io.frames import Clip, Frame
 
@@ -23,14 +24,6 @@ VIDEO_TOL = 3
 def ramp(value: int, dtype: type = np.uint8) -> np.ndarray:
     """An (H, W) image whose pixels are ``value + column``."""
     return (value + np.tile(np.arange(W), (H, 1))).astype(dtype)
-
-
-def write_folder(folder: Path, images: dict[str, np.ndarray]) -> Path:
-    """Write ``images`` (file name -> array) into ``folder``."""
-    folder.mkdir(exist_ok=True)
-    for name, image in images.items():
-        assert cv2.imwrite(str(folder / name), image)
-    return folder
 
 
 def video_frame(index: int) -> np.ndarray:

@@ -2,8 +2,7 @@
 
 from __future__ import annotations
 
-import subprocess
-import sys
+import functools
 from collections import defaultdict
 from pathlib import Path
 
@@ -12,7 +11,10 @@ import pytest
 from rerun.chunk import RrdReader
 from scipy.optimize import linear_sum_assignment
 
-from wfviz.compare import Disagreements, compare, parse_run
+import wfviz.synth  # registers synth: clips with open_clip
+from conftest import needs_vulkan, wfviz as run_wfviz
+from wfviz.compare import Disagreements, parse_run
+from wfviz.compare.session import compare
 from wfviz.compare.differences import clusters
 from wfviz.evaluate import read_points
 from wfviz.io.clip import open_clip
@@ -23,9 +25,7 @@ REQUIRED = ("camera/detections", "camera/predictions", "camera/gates", "camera/t
             "timing/total", "config", "eval/cle", "eval/summary", "log")
 
 
-def wfviz(*args: str, cwd: Path) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=600)
+wfviz = functools.partial(run_wfviz, timeout=600)
 
 
 def _rows(path: Path) -> dict[str, list[tuple[int, object]]]:
@@ -210,13 +210,7 @@ def test_study_top_trials_and_defaults(tmp_path: Path) -> None:
 
 
 
-def _vulkan_ready() -> bool:
-    from test_screenshot import _vulkan_missing  # the screenshot tests' own check
-
-    return _vulkan_missing() is None
-
-
-@pytest.mark.skipif(not _vulkan_ready(), reason="no Vulkan software driver (see tests/test_screenshot.py)")
+@needs_vulkan
 def test_screenshot_shows_both_runs_and_a_shared_plot(two_runs: Path) -> None:
     """The default blueprint in the real viewer: both runs' camera frames side by side above,
     and a metric plot below with a series in each run's colour."""

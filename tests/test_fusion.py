@@ -11,6 +11,7 @@ import pytest
 
 from wfviz.config import ConfigError, config_from_dict, config_to_toml
 from wfviz.io.frames import Frame
+from wfviz.record_options import RecorderOptions
 from wfviz.run import run
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.synth.scenarios import make_scenario
@@ -222,7 +223,7 @@ def test_recording_logs_the_fusion_entities(tmp_path):
     trk = make_tracker("fusion")
     rrd = tmp_path / "f.rrd"
     run(clip, trk, recording=rrd, truth=truth_points(clip),
-        recorder_options=dict(source="uniform-50hz", config_text=config_to_toml(trk.config), image_every=0))
+        recorder_options=RecorderOptions(source="uniform-50hz", config_text=config_to_toml(trk.config), image_every=0))
     frames, cols, texts = defaultdict(set), defaultdict(set), []
     for chunk in RrdReader(rrd).stream():
         batch = chunk.to_record_batch()

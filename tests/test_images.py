@@ -12,6 +12,7 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from conftest import needs_vulkan
 from wfviz.record.images import preview_jpeg
 
 N = 25
@@ -120,13 +121,7 @@ def test_image_every_with_exact_blocks(recorded):
     assert _shown(rows, 7) == ["preview"] and _shown(rows, 12) == ["exact"]
 
 
-def _vulkan_ready() -> bool:
-    from test_screenshot import _vulkan_missing  # the screenshot tests' own check
-
-    return _vulkan_missing() is None
-
-
-@pytest.mark.skipif(not _vulkan_ready(), reason="no Vulkan software driver (see tests/test_screenshot.py)")
+@needs_vulkan
 def test_preview_looks_like_the_exact_frame_in_the_viewer(recorded):
     """Scrubbing from an exact frame to a preview does not change how the frame looks."""
     from PIL import Image

@@ -17,7 +17,7 @@ from wfviz.cli import app
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import no_detections
 from wfviz.trackers import TRACKERS, TrackerEntry
-from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.base import FrameResult, StageTimer, min_side
 from wfviz.tracking import TrackState
 
 
@@ -38,6 +38,9 @@ class BrightestTracker:
 
     def __init__(self, config: BrightestConfig | None = None) -> None:
         self.config = config or BrightestConfig()
+
+    def min_frame_side(self) -> int:
+        return min_side()  # no windows of its own: the pipeline's minimum
 
     def step(self, frame: Frame) -> FrameResult:
         timer = StageTimer()

@@ -3,8 +3,8 @@
 from __future__ import annotations
 
 import csv
-import hashlib
 import os
+import select
 import signal
 import subprocess
 import sys
@@ -13,29 +13,10 @@ from pathlib import Path
 
 import numpy as np
 import pytest
-from typer.testing import CliRunner
 
-from test_bad_input import H, W, noise
-from test_clip import write_folder
-from wfviz.cli import app
+from conftest import WFVIZ, H, W, digest, invoke, noise, temporaries, write_folder
+from wfviz import sinks
 from wfviz.io import outputs
-
-WFVIZ = [sys.executable, "-m", "wfviz"]
-
-
-def invoke(*args: str):  # noqa: ANN201
-    return CliRunner().invoke(app, list(args))
-
-
-def digest(folder: Path) -> dict[str, str]:
-    """Name -> SHA-1 of every file under ``folder``."""
-    return {str(p.relative_to(folder)): hashlib.sha1(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def temporaries(folder: Path) -> list[Path]:
-    return [p for p in folder.rglob("*") if p.name.endswith(outputs.TEMP_SUFFIX) or p.name.endswith(".part")]
-
 
 @pytest.fixture()
 def scene(tmp_path: Path) -> Path:
@@ -149,14 +130,14 @@ class _FullDisk:
 
 def test_a_full_disk_names_the_file_and_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
     np.save(tmp_path / "c.npy", noise(shape=(6, H, W)))
-    real_init = outputs.TracksWriter.__init__
+    real_init = sinks.TracksWriter.__init__
 
-    def init(self, path: Path) -> None:  # noqa: ANN001
+    def init(self, path: Path) -> None:
         real_init(self, path)
         self._fh.close()
         self._fh = _FullDisk()
 
-    monkeypatch.setattr(outputs.TracksWriter, "__init__", init)
+    monkeypatch.setattr(sinks.TracksWriter, "__init__", init)
     r = invoke("track", str(tmp_path / "c.npy"), "--tracks", str(tmp_path / "t.csv"))
     assert r.exit_code == 2, r.output
     line = [ln for ln in r.output.splitlines() if "error" in ln]
@@ -330,10 +311,30 @@ def test_synth_refuses_an_infinite_snr(tmp_path: Path) -> None:
     assert r.exit_code == 2 and "--snr" in r.output and not (tmp_path / "o").exists()
 
 
+#: ``python -m wfviz ARGS`` that prints "ready" once wfviz's own SIGINT handler is installed, i.e. while
+#: it imports numpy, OpenCV and the command line (a signal before that lands in Python's start-up)
+_SPY_LOADING = """
+import signal, sys
+_real = signal.signal
+def _spy(sig, handler):
+    old = _real(sig, handler)
+    if sig == signal.SIGINT and getattr(handler, "__name__", "") == "_exit_now":
+        sys.stdout.write("ready\\n")
+        sys.stdout.flush()
+    return old
+signal.signal = _spy
+sys.argv[0] = "wfviz"
+import runpy
+runpy.run_module("wfviz", run_name="__main__", alter_sys=True)
+"""
+
+
 def test_ctrl_c_while_loading_is_one_line(tmp_path: Path) -> None:
-    proc = subprocess.Popen([*WFVIZ, "config"], stdout=subprocess.PIPE, stderr=subprocess.PIPE, text=True,
-                            cwd=tmp_path)
-    time.sleep(0.1)  # importing numpy, OpenCV and the command line takes far longer
+    proc = subprocess.Popen([sys.executable, "-c", _SPY_LOADING, "config"], stdout=subprocess.PIPE,
+                            stderr=subprocess.PIPE, text=True, cwd=tmp_path)
+    assert proc.stdout is not None
+    ready, _, _ = select.select([proc.stdout], [], [], 60)
+    assert ready and proc.stdout.readline() == "ready\n"  # wfviz's handler is set, the rest still loading
     proc.send_signal(signal.SIGINT)
     _, stderr = proc.communicate(timeout=60)
     assert proc.returncode == 130 and "Traceback" not in stderr, stderr
@@ -381,7 +382,7 @@ def test_a_recording_that_cannot_be_written_is_one_line(tmp_path: Path, monkeypa
 
     np.save(tmp_path / "c.npy", noise(shape=(6, H, W)))
 
-    def fail(self, *args, **kwargs) -> None:  # noqa: ANN001, ANN002, ANN003
+    def fail(self, *args, **kwargs) -> None:
         raise RuntimeError("File-writer thread shut down prematurely")  # what Rerun raises on a full disk
 
     monkeypatch.setattr(Recorder, "log", fail)

@@ -20,7 +20,7 @@ from wfviz.cli import app
 from wfviz.config import ConfigError, config_from_dict, load_config
 from wfviz.io.clip import MIN_SIDE, ClipError, ClipWarning, open_clip
 from wfviz.io.frames import Frame
-from wfviz.run import min_frame_side, run
+from wfviz.run import run
 from wfviz.trackers import TRACKERS, make_tracker
 from wfviz.trackers.gewc.config import GEWCConfig
 
@@ -110,11 +110,11 @@ def frames_of(shape: tuple[int, int], n: int = 4, dtype: type = np.uint16) -> li
 @given(config_dicts() | valid_config_dicts())
 def test_random_configs_load_or_fail_clearly_and_loaded_ones_run(data: dict) -> None:
     try:
-        config = config_from_dict(data)
+        config = config_from_dict(data, GEWCConfig)
     except ConfigError as exc:
         assert_clear(exc)
         return
-    side = min_frame_side(config)
+    side = make_tracker("gewc", config).min_frame_side()
     with warnings.catch_warnings():
         warnings.simplefilter("ignore", RuntimeWarning)  # odd thresholds may divide by zero
         for shape in ((side, side), (max(side, 40), max(side, 56))):  # the smallest frame accepted
@@ -129,7 +129,7 @@ def test_random_config_files_load_or_fail_clearly(tmp_path_factory: pytest.TempP
     path = tmp_path_factory.mktemp("cfg") / "c.toml"
     path.write_bytes(raw)
     try:
-        load_config(path)
+        load_config(path, GEWCConfig)
     except ConfigError as exc:
         assert_clear(exc)
         assert str(exc).startswith(f"{path}: ")

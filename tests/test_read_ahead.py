@@ -10,13 +10,14 @@ import numpy as np
 import pytest
 from typer.testing import CliRunner
 
-from test_clip import ramp, write_folder
+from conftest import write_folder
+from test_clip import ramp
 from wfviz.cli import app
 from wfviz.io.clip import open_clip
 from wfviz.io.frames import Frame, read_ahead
 
 
-def numbered(n: int, fail_at: int | None = None, closed: list[bool] | None = None):  # noqa: ANN201
+def numbered(n: int, fail_at: int | None = None, closed: list[bool] | None = None):
     """Frames 0..n-1 (raising at ``fail_at``); appends True to ``closed`` when closed."""
     try:
         for i in range(n):

@@ -11,6 +11,7 @@ import pytest
 import rerun as rr
 from rerun.chunk import RrdReader
 
+import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
 from wfviz.io.clip import ClipError, open_clip
 import pyarrow as pa
 
@@ -129,6 +130,7 @@ def test_gewc_recording_logs_the_front_end_entities(tmp_path: Path) -> None:
     median σ, the camera motion and the sequential test's level are in the recording, each
     logged once a frame (the noise map with the images), and detections hover their change."""
     from wfviz.config import config_to_toml
+    from wfviz.record_options import RecorderOptions
     from wfviz.run import run
     from wfviz.synth.scenarios import make_scenario
     from wfviz.trackers import make_tracker
@@ -138,7 +140,7 @@ def test_gewc_recording_logs_the_front_end_entities(tmp_path: Path) -> None:
     trk = make_tracker("gewc")
     rrd = tmp_path / "g.rrd"
     run(clip, trk, recording=rrd,
-        recorder_options=dict(source="uniform-50hz", config_text=config_to_toml(trk.config), image_every=4,
+        recorder_options=RecorderOptions(source="uniform-50hz", config_text=config_to_toml(trk.config), image_every=4,
                               exact_every=4))
     rows: dict[str, list[int]] = {}
     names: dict[str, set[str]] = {}

@@ -16,11 +16,12 @@ import numpy as np
 import pytest
 from rerun.chunk import RrdReader
 
+from conftest import verify
 from wfviz.io.clip import open_clip
+from wfviz.record_options import RecorderOptions
 from wfviz.run import run
 from wfviz.trackers import make_tracker
 
-RERUN = Path(sys.executable).with_name("rerun")
 N_FRAMES = 300
 #: The CLI with every tracker step slowed down (15 ms), so a signal lands inside a frame.
 SLOW_CLI = """
@@ -59,16 +60,6 @@ def rrd_frames(path: Path) -> tuple[dict[str, set[int]], list[str]]:
     return frames, logs
 
 
-def verify(path: Path) -> None:
-    """``rerun rrd verify`` passes (skipped when this rerun has no such subcommand)."""
-    if not RERUN.exists():
-        pytest.skip(f"no rerun CLI beside {sys.executable}")
-    if "verify" not in subprocess.run([str(RERUN), "rrd", "--help"], capture_output=True, text=True).stdout:
-        pytest.skip("this rerun has no `rerun rrd verify`")
-    proc = subprocess.run([str(RERUN), "rrd", "verify", str(path)], capture_output=True, text=True, timeout=120)
-    assert proc.returncode == 0, proc.stdout + proc.stderr
-
-
 @pytest.mark.parametrize("sig, code", [(signal.SIGINT, 130), (signal.SIGTERM, 143)])
 def test_signal_leaves_a_complete_recording_of_the_frames_done(tmp_path: Path, sig: int, code: int) -> None:
     clip = moving_spot(tmp_path / "clip.npy")
@@ -104,7 +95,7 @@ def test_signal_leaves_a_complete_recording_of_the_frames_done(tmp_path: Path, s
 def test_a_complete_run_verifies(tmp_path: Path) -> None:
     clip = open_clip(moving_spot(tmp_path / "clip.npy", n=20, size=48))
     summary = run(clip, make_tracker("gewc"), recording=tmp_path / "r.rrd",
-                  recorder_options=dict(source="test", config_text=""))
+                  recorder_options=RecorderOptions(source="test", config_text=""))
     assert summary.frames == 20 and not summary.interrupted
     verify(tmp_path / "r.rrd")
     assert set().union(*rrd_frames(tmp_path / "r.rrd")[0].values()) == set(range(20))
@@ -114,7 +105,7 @@ def test_handlers_stop_between_frames_and_are_restored(tmp_path: Path) -> None:
     clip = open_clip(moving_spot(tmp_path / "clip.npy", n=40, size=48))
     before = {s: signal.getsignal(s) for s in (signal.SIGINT, signal.SIGTERM)}
 
-    def on_frame(frame, result) -> None:  # noqa: ANN001
+    def on_frame(frame, result) -> None:
         if frame.index == 5:
             os.kill(os.getpid(), signal.SIGTERM)  # handled at once, in this thread
 

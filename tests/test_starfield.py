@@ -253,18 +253,21 @@ def test_config_round_trips_and_checks():
     with pytest.raises(ConfigError, match="min_speed"):
         config_from_dict({"chains": {"min_speed": 5.0, "max_speed": 2.0}}, StarfieldConfig)
     assert isinstance(make_tracker("starfield"), StarfieldTracker)
-    assert ChainConfig().backtrack >= 0
+    assert ChainConfig().backtrack == 4  # the documented default (frames of re-segmentation back in time)
+    with pytest.raises(ConfigError, match="backtrack"):
+        config_from_dict({"chains": {"backtrack": -1}}, StarfieldConfig)
 
 
 def test_recording_has_the_starfield_entities(tmp_path):
     from rerun.chunk import RrdReader
 
+    from wfviz.record_options import RecorderOptions
     from wfviz.run import run
 
     clip = make_scenario("starfield", seed=0, n_frames=7)
     rrd = tmp_path / "sf.rrd"
     summary = run(clip, make_tracker("starfield"), recording=rrd, truth=_truth(clip),
-                  recorder_options=dict(source="starfield", config_text=config_to_toml(StarfieldConfig()),
+                  recorder_options=RecorderOptions(source="starfield", config_text=config_to_toml(StarfieldConfig()),
                                         image_every=0))
     assert summary.frames == 7
     paths, texts, summary_text = set(), [], ""

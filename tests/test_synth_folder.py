@@ -4,38 +4,15 @@ user's file in it survives."""
 
 from __future__ import annotations
 
-import hashlib
 import json
-import subprocess
-import sys
 from pathlib import Path
 
 import cv2
 import numpy as np
 import pytest
 
+from conftest import digest, one_line_error, wfviz
 from wfviz.synth.folder import MANIFEST
-
-WFVIZ = [sys.executable, "-m", "wfviz"]
-
-
-def wfviz(*args: str, cwd: Path | None = None) -> subprocess.CompletedProcess:
-    return subprocess.run([*WFVIZ, *args], capture_output=True, text=True, timeout=300, cwd=cwd)
-
-
-def digest(folder: Path) -> dict[str, str]:
-    """Name -> SHA-1 of every file under ``folder``."""
-    return {str(p.relative_to(folder)): hashlib.sha1(p.read_bytes()).hexdigest()
-            for p in sorted(folder.rglob("*")) if p.is_file()}
-
-
-def one_line_error(r: subprocess.CompletedProcess, *words: str) -> None:
-    assert r.returncode == 2, r.stderr
-    lines = r.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("wfviz: error: "), r.stderr
-    for w in words:
-        assert w in lines[0], lines[0]
-
 
 @pytest.fixture()
 def user_clip(tmp_path: Path) -> Path:

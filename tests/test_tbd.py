@@ -23,7 +23,7 @@ from wfviz.trackers.tbd.model import likelihood, psf_patch
 SIGMA, LEVEL = 20.0, 1000.0
 
 
-def noise_clip(n: int, seed: int, shape=(64, 64), targets=()):  # noqa: ANN001
+def noise_clip(n: int, seed: int, shape=(64, 64), targets=()):
     """uint16 frames of Gaussian noise (sigma 20 on 1000) with point targets: each target is
     (first, last, x0, y0, vx, vy, peak SNR), PSF sigma 0.8 px (as lowsnr-tbd)."""
     g = np.random.default_rng(seed)
@@ -123,7 +123,7 @@ def test_lowsnr_scenario_count_follows_truth_within_the_latency():
 def test_same_seed_same_output_other_seed_other_particles():
     frames, _ = noise_clip(8, 3, targets=[(0, 99, 30.0, 30.0, 0.3, 0.2, 4.0)])
 
-    def run(seed: int):  # noqa: ANN202
+    def run(seed: int):
         tr = TBDTracker(replace(TBDConfig(), filter=replace(TBDConfig().filter, seed=seed)))
         return [tr.step(f) for f in frames]
 
@@ -157,6 +157,7 @@ def test_large_frames_run_over_candidate_windows_and_tiles():
 def test_recording_has_the_tbd_entities(tmp_path):
     from rerun.chunk import RrdReader
 
+    from wfviz.record_options import RecorderOptions
     from wfviz.run import run
 
     clip = make_scenario("lowsnr-tbd", seed=0, snr=5.0, n_frames=12)
@@ -165,7 +166,7 @@ def test_recording_has_the_tbd_entities(tmp_path):
         (shown if row.visible else hidden)[row.frame].append((row.target_id, row.x, row.y))
     rrd, csv = tmp_path / "t.rrd", tmp_path / "t.csv"
     summary = run(clip, make_tracker("tbd"), tracks_csv=csv, recording=rrd,
-                  recorder_options=dict(source="lowsnr-tbd", config_text="", image_every=4),
+                  recorder_options=RecorderOptions(source="lowsnr-tbd", config_text="", image_every=4),
                   truth=(dict(shown), dict(hidden)))
     assert summary.scores.pd > 0.5
     frames: dict[str, set] = defaultdict(set)

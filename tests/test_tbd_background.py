@@ -47,7 +47,6 @@ def test_lowsnr_count_right_on_an_unknown_offset_and_noise():
     true = np.zeros(clip.n_frames, dtype=int)
     for row in clip.truth():
         true[row.frame] += row.visible
-    g = np.random.default_rng(5)
     texture = np.zeros((64, 64))
     texture[40, 12] += 5000.0
     tracker = TBDTracker()

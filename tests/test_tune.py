@@ -4,7 +4,7 @@ of the best trial with `wfviz track` + `wfviz eval`."""
 
 from __future__ import annotations
 
-import csv
+import functools
 import os
 import signal
 import subprocess
@@ -18,6 +18,7 @@ import pytest
 from rerun.chunk import RrdReader
 from typer.testing import CliRunner
 
+from conftest import rows, wfviz as run_wfviz
 from wfviz.cli import app
 from wfviz.evaluate import evaluate
 from wfviz.trackers import TRACKERS, config_class, default_space
@@ -36,14 +37,7 @@ min_motion = { low = 0.5, high = 4.0 }
 """
 
 
-def wfviz(*args: str, cwd: Path, **kw) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True,
-                          text=True, timeout=600, **kw)
-
-
-def rows(path: Path) -> list[dict[str, str]]:
-    with open(path, newline="") as fh:
-        return list(csv.DictReader(fh))
+wfviz = functools.partial(run_wfviz, timeout=600)
 
 
 @pytest.fixture(scope="module")
@@ -177,7 +171,7 @@ def test_failing_trial_is_recorded_and_the_study_goes_on(tmp_path, monkeypatch):
 
     step = gewc.GEWCTracker.step
 
-    def flaky(self, frame):  # noqa: ANN001, ANN202
+    def flaky(self, frame):
         if self.config.tracking.p_detect < 0.75 and frame.index == 3:
             raise RuntimeError("boom at frame 3")
         return step(self, frame)

@@ -16,10 +16,8 @@ import pytest
 from hypothesis import HealthCheck, given, settings
 from hypothesis import strategies as st
 
-from test_bad_input import noise
-from test_clip import write_folder
-from test_output_safety import digest, invoke, temporaries
-from test_tune import rows, wfviz
+from conftest import digest, invoke, noise, one_line_error, rows, temporaries, write_folder
+from test_tune import wfviz
 
 CLIP = "synth:fov70-maneuver:0"
 SPACE = """
@@ -28,14 +26,6 @@ k_sigma = { low = 3.0, high = 6.0 }
 [tracking]
 p_detect = { low = 0.6, high = 0.98 }
 """
-
-
-def one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
-    assert proc.returncode == 2, (proc.stdout, proc.stderr)
-    lines = proc.stderr.strip().splitlines()
-    assert len(lines) == 1 and lines[0].startswith("wfviz: error:"), proc.stderr
-    for w in words:
-        assert w in lines[0], (w, lines[0])
 
 
 @pytest.fixture()

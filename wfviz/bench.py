@@ -6,7 +6,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 from wfviz.io.frames import Clip
-from wfviz.run import drive
+from wfviz.run import SingleRun, drive
 from wfviz.sinks import StageTiming, TimingSink
 from wfviz.trackers.base import Tracker
 
@@ -28,7 +28,7 @@ def bench(clip: Clip, tracker: Tracker, start: int = 0, stop: int | None = None,
     """Run ``tracker`` over ``clip`` once, timing decoding and every stage it reports (the
     first ``warmup`` frames left out)."""
     timing = TimingSink(warmup)
-    summary = drive(clip, tracker, [timing], start=start, stop=stop, ahead=False)
+    summary = drive(clip, SingleRun(tracker), [timing], start=start, stop=stop, ahead=False)
     if not timing.decode:
         if summary.signal is not None:  # stopped before a frame was timed: nothing to show
             raise KeyboardInterrupt

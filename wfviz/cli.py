@@ -18,10 +18,11 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from wfviz.config import ConfigError, config_to_toml
+import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
 from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, display, open_clip
 from wfviz.io.frames import Clip
 from wfviz.io.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
-from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
+from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY, RecorderOptions
 from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
@@ -35,7 +36,7 @@ def _flags_take_no_value() -> None:
     if shown is None or getattr(shown, "wfviz_flags", False):  # older typer: no type shown
         return
 
-    def display_type_rich(self, ctx):  # noqa: ANN001, ANN202
+    def display_type_rich(self, ctx):
         if getattr(self, "is_flag", False) and not getattr(self, "count", False):
             return None
         return shown(self, ctx)
@@ -51,7 +52,7 @@ class _OneLineErrors(TyperGroup):
     """Usage errors (a bad option value, an unknown option) as one line naming the option and
     what it accepts, exit 2, instead of the usage box."""
 
-    def main(self, *args, standalone_mode: bool = True, **kwargs):  # noqa: ANN002, ANN003, ANN201
+    def main(self, *args, standalone_mode: bool = True, **kwargs):
         if not standalone_mode:
             return super().main(*args, standalone_mode=False, **kwargs)
         try:
@@ -104,7 +105,7 @@ def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
     raise typer.Exit(code)
 
 
-def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:  # noqa: ANN001
+def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Print a warning as one line: ``wfviz: note|warning: ...``."""
     if issubclass(category, ClipNote):
         kind = "note"
@@ -123,13 +124,13 @@ def _terminate(signum: int, _frame: object) -> None:
     raise Terminated()
 
 
-def _guarded(fn):  # noqa: ANN001, ANN202
+def _guarded(fn):
     """Turn known bad-input errors into one-line messages (tracebacks only with --debug),
     warnings into one-line notes, and SIGTERM into the clean-up path of Ctrl-C (temporary files
     removed, child processes ended)."""
 
     @functools.wraps(fn)
-    def wrapper(*args, **kwargs):  # noqa: ANN002, ANN003, ANN202
+    def wrapper(*args, **kwargs):
         with warnings.catch_warnings():
             warnings.simplefilter("always", ClipWarning)
             warnings.showwarning = _show_warning
@@ -162,7 +163,7 @@ def _guarded(fn):  # noqa: ANN001, ANN202
     return wrapper
 
 
-def _tracker(name: str, config: Path | None):  # noqa: ANN202
+def _tracker(name: str, config: Path | None):
     return load_tracker(name, config)
 
 
@@ -193,7 +194,7 @@ def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
                       highlight=False, markup=False, soft_wrap=True)
 
 
-def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int):  # noqa: ANN202
+def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int):
     """The live view asked for (at most one of --spawn, --connect, --serve), or None."""
     asked = [name for name, on in (("--spawn", spawn), ("--connect", connect is not None), ("--serve", serve)) if on]
     if len(asked) > 1:
@@ -208,16 +209,16 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int): 
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
-             inputs: tuple[tuple[Path | None, str], ...] = (), live=None) -> RunSummary:  # noqa: ANN001
+             inputs: tuple[tuple[Path | None, str], ...] = (), live=None) -> RunSummary:
     _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
     total = clip.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
     options = None
     if recording is not None:
-        options = dict(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
-                       trail_length=tracker.config.tracking.trail_length,
-                       jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
+        options = RecorderOptions(source=source, config_text=config_to_toml(tracker.config), image_every=image_every,
+                                  trail_length=tracker.config.tracking.trail_length,
+                                  jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
         if live is not None:
             err.print(f"wfviz: live: {live.describe()}", highlight=False, markup=False, soft_wrap=True)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
@@ -228,7 +229,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
         import time
         t0 = time.perf_counter()
 
-        def tick(frame, result) -> None:  # noqa: ANN001
+        def tick(frame, result) -> None:
             count[0] += 1
             progress.update(task, advance=1, fps=count[0] / max(time.perf_counter() - t0, 1e-9))
 
@@ -237,7 +238,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
     return summary
 
 
-def _read_truth(path: Path | None):  # noqa: ANN202
+def _read_truth(path: Path | None):
     if path is None:
         return None
     from wfviz.evaluate import read_truth
@@ -581,7 +582,7 @@ def tune(
                   console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task("trials", total=trials, best="")
 
-        def on_batch(state) -> None:  # noqa: ANN001
+        def on_batch(state) -> None:
             top = ranked(state.trials, objective)
             best = ("" if not top else f"{len(top)} scored" if objective == "pareto"
                     else f"best {metric} {top[0].values[0]:.3f} (trial {top[0].number})")
@@ -597,7 +598,7 @@ def tune(
         raise typer.Exit(128 + result.signal)
 
 
-def _tune_summary(result, metric: str) -> None:  # noqa: ANN001
+def _tune_summary(result, metric: str) -> None:
     from wfviz.tune.outputs import ranked
 
     state, settings = result.state, result.settings
@@ -652,7 +653,8 @@ def compare(
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked."""
-    from wfviz.compare import check_labels, compare as run_compare, format_summary, parse_run, study_runs
+    from wfviz.compare import check_labels, format_summary, parse_run, study_runs
+    from wfviz.compare.session import compare as run_compare
 
     runs = [parse_run(s) for s in run_specs or []]
     if study is not None:
@@ -676,9 +678,10 @@ def compare(
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
+        options = RecorderOptions(source=str(clip), image_every=0 if no_images else image_every,
+                                  exact_every=exact_every, jpeg_quality=jpeg_quality)
         summary = run_compare(source, runs, recording=output, tracks=csvs, truth=truth_points, gate=gate,
-                              image_every=0 if no_images else image_every, exact_every=exact_every,
-                              jpeg_quality=jpeg_quality, source=str(clip), start=start, stop=stop,
+                              options=options, start=start, stop=stop,
                               on_frame=lambda n: progress.update(task, completed=n))
     state = (f"[yellow]interrupted by {signal.Signals(summary.signal).name}[/]" if summary.signal else "done")
     out.print(f"{state}: {len(runs)} runs over {summary.frames} frames in {summary.seconds:.2f} s"

@@ -303,11 +303,10 @@ def _build(cls: type, data: dict[str, Any], prefix: str) -> Any:
     return cls(**kwargs)
 
 
-def config_from_dict(data: dict[str, Any], cls: type | None = None) -> Any:
-    """Build a ``cls`` config (default GEWC) from nested dicts as parsed from TOML, validating
-    every key; a ``validate()`` method on the config class checks cross-field rules."""
-    if cls is None:
-        from wfviz.trackers.gewc.config import GEWCConfig as cls
+def config_from_dict(data: dict[str, Any], cls: type) -> Any:
+    """Build a ``cls`` config (a tracker's, :func:`wfviz.trackers.config_class`) from nested
+    dicts as parsed from TOML, validating every key; a ``validate()`` method on the config class
+    checks cross-field rules."""
     config = _build(cls, data, "")
     check = getattr(config, "validate", None)
     if check is not None:
@@ -345,11 +344,9 @@ def read_toml(path: Path, what: str) -> dict[str, Any]:
         raise ConfigError(f"{path}: not valid TOML ({exc})") from None
 
 
-def load_config(path: str | Path | None, cls: type | None = None) -> Any:
+def load_config(path: str | Path | None, cls: type) -> Any:
     """Load a TOML config file for ``cls``; None gives the defaults."""
     if path is None:
-        if cls is None:
-            from wfviz.trackers.gewc.config import GEWCConfig as cls
         return cls()
     path = Path(path)
     data = read_toml(path, "config file")

@@ -44,14 +44,6 @@ class TargetScore:
     def main_track(self) -> int | None:
         return Counter(self.track_ids).most_common(1)[0][0] if self.track_ids else None
 
-    @property
-    def max_error(self) -> float:
-        return max(self.errors) if self.errors else _NAN
-
-    @property
-    def rms_error(self) -> float:
-        return float(np.sqrt(np.mean(np.square(self.errors)))) if self.errors else _NAN
-
 
 @dataclass(frozen=True)
 class TargetEval:

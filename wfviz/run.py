@@ -1,27 +1,28 @@
-"""The drive loop: a tracker over a clip, each frame's result fed to the sinks
-(:mod:`wfviz.sinks`: tracks CSV, recording, scores against truth, progress, timing). ``wfviz
-record``, ``track``, ``demo`` (through :func:`run`) and ``bench`` (:mod:`wfviz.bench`) all use it."""
+"""The drive loop: a stepper (one tracker, or ``wfviz compare``'s group of runs) over a clip,
+each frame's results fed to the sinks (:mod:`wfviz.sinks`: tracks CSV, recording, scores against
+truth, progress, timing, the comparison). ``wfviz record``, ``track``, ``demo`` (through
+:func:`run`), ``bench`` (:mod:`wfviz.bench`) and ``compare`` (:mod:`wfviz.compare.session`) all
+use it."""
 
 from __future__ import annotations
 
-import dataclasses
 import signal
 import threading
 import time
 from collections.abc import Callable, Generator, Iterator, Sequence
 from contextlib import nullcontext
-from dataclasses import dataclass, replace
+from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import FrameType
-from typing import Any
+from typing import Any, Protocol
 
-from wfviz.config import HorizonConfig, SuppressionConfig
 from wfviz.evaluate import EvalResult, Points
-from wfviz.io.clip import MIN_SIDE, check_frame_size
+from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip, Frame, read_ahead
 from wfviz.io.outputs import check_writable
-from wfviz.sinks import CallbackSink, RecordingSink, RunEnd, ScoreSink, Sink, Step, TracksSink
-from wfviz.trackers.base import FrameResult, Tracker, TrackerConfig
+from wfviz.record_options import RecorderOptions
+from wfviz.sinks import CallbackSink, Facts, RecordingSink, RunEnd, ScoreSink, Sink, Step, TracksSink
+from wfviz.trackers.base import FrameResult, Tracker
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -29,8 +30,8 @@ STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 @dataclass(frozen=True)
 class RunSummary:
     """What a run did: frames processed, wall time, confirmed track ids, the signal that
-    stopped it (None if it ran to the end), skipped input frames, and the scores against
-    truth when truth was given."""
+    stopped it (None if it ran to the end), skipped input frames, the scores against truth
+    when truth was given, and what the sinks published of the whole run."""
 
     frames: int
     seconds: float
@@ -42,6 +43,7 @@ class RunSummary:
     skipped: tuple[int, ...] = ()
     first: int | None = None
     last: int | None = None
+    facts: Facts = field(default_factory=Facts)
 
     @property
     def fps(self) -> float:
@@ -72,36 +74,51 @@ class StopSignals:
         self._old.clear()
 
 
-def min_frame_side(config: TrackerConfig | None) -> int:
-    """Smallest frame side the configured windows fit in (16 px with the defaults): the
-    background suppression's window and the horizon's ground-side variance window below the
-    edge, for the trackers whose configuration has those sections."""
-    side = MIN_SIDE
-    sections = [getattr(config, f.name) for f in dataclasses.fields(config)] if dataclasses.is_dataclass(config) else []
-    for section in sections:
-        if isinstance(section, SuppressionConfig):
-            side = max(side, int(section.size))
-        elif isinstance(section, HorizonConfig) and section.enabled:
-            side = max(side, int(section.variance_window) // 2 + int(section.step) + 2)
-    return side
+class Stepper(Protocol):
+    """What the drive loop steps through the frames: one tracker (:class:`SingleRun`) or a
+    group of runs (``wfviz compare``'s :class:`wfviz.compare.runs.RunGroup`)."""
+
+    def min_frame_side(self) -> int:
+        """Smallest frame side every run's configured windows fit in."""
+        ...
+
+    def advance(self, frame: Frame) -> tuple[tuple[FrameResult, ...], tuple[float, ...]]:
+        """Every run's result on ``frame``, and each run's milliseconds as it would cost alone."""
+        ...
 
 
-def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0, stop: int | None = None,
+class SingleRun:
+    """One tracker as a :class:`Stepper`."""
+
+    def __init__(self, tracker: Tracker) -> None:
+        self.tracker = tracker
+
+    def min_frame_side(self) -> int:
+        return self.tracker.min_frame_side()
+
+    def advance(self, frame: Frame) -> tuple[tuple[FrameResult, ...], tuple[float, ...]]:
+        t0 = time.perf_counter()
+        result = self.tracker.step(frame)
+        return (result,), ((time.perf_counter() - t0) * 1e3,)
+
+
+def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0, stop: int | None = None,
           ahead: bool = True, signals: StopSignals | None = None) -> RunSummary:
-    """The one loop: frames ``start <= index < stop`` of ``clip`` through ``tracker``, each
-    :class:`~wfviz.sinks.Step` to every sink in order, then every sink's ``finish`` (or, on an
-    error, every sink's ``abort``, and the error goes on).
+    """The one loop: frames ``start <= index < stop`` of ``clip`` through ``stepper`` (one
+    tracker: :class:`SingleRun`), each :class:`~wfviz.sinks.Step` published by every sink, then
+    to every sink; at the end every sink concludes, then finishes (or, on an error, every sink
+    aborts, and the error goes on). See :mod:`wfviz.sinks`.
 
     ``ahead`` decodes frames in a background thread while the tracker works
     (:func:`wfviz.io.frames.read_ahead`); without it a step's ``wait_ms`` is the decoding time.
     SIGINT and SIGTERM (and a KeyboardInterrupt raised by a sink) stop the run after the current
     frame; the sinks then finish with the frames done. ``signals``: an active :class:`StopSignals`
     of the caller (a signal that arrived while it opened the sinks stops the run before its first
-    frame). No frame in the range: ValueError.
+    frame). No frame in the range: ValueError. The summary's ``confirmed`` are the (first) run's.
     """
     source = str(clip.path) if clip.path is not None else clip.name
     try:
-        check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+        check_frame_size(clip.shape, source, stepper.min_frame_side())
     except BaseException:
         _abort(sinks)
         raise
@@ -117,13 +134,15 @@ def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0
                 t1 = time.perf_counter()
                 if frame is None or signals.signum is not None:  # a signal while reading: no new frame
                     break
-                result = tracker.step(frame)
-                step = Step(frame, result, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3)
+                results, run_ms = stepper.advance(frame)
+                step = Step(frame, results, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3, run_ms)
                 tracker_ms += step.step_ms
-                confirmed.update(t.track_id for t in result.tracks if t.confirmed)
+                confirmed.update(t.track_id for t in results[0].tracks if t.confirmed)
                 frames += 1  # counted before the sinks: one that raises KeyboardInterrupt had it
                 first = frame.index if first is None else first
                 last = frame.index
+                for sink in sinks:
+                    sink.publish(step)
                 for sink in sinks:
                     sink.step(step)
                 if signals.signum is not None:
@@ -138,19 +157,35 @@ def drive(clip: Clip, tracker: Tracker, sinks: Sequence[Sink], *, start: int = 0
         if frames == 0 and signals.signum is None:
             _abort(sinks)
             raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
-        end = RunEnd(frames, signals.signum)
+        end = RunEnd(frames, signals.signum, time.perf_counter() - t_start)
         try:
+            for sink in sinks:
+                sink.conclude(end)
             for sink in sinks:
                 sink.finish(end)
         except BaseException:
             _abort(sinks)
             raise
     return RunSummary(frames, time.perf_counter() - t_start, tracker_ms / max(frames, 1), tuple(sorted(confirmed)),
-                      signals.signum is not None, None, signals.signum, tuple(sorted(clip.skipped)), first, last)
+                      signals.signum is not None, None, signals.signum, tuple(sorted(clip.skipped)), first, last,
+                      end.facts)
+
+
+def open_sinks(openers: Sequence[Callable[[], Sink]]) -> list[Sink]:
+    """Every sink opened in order; on an error (or a KeyboardInterrupt) the ones already open
+    abort (remove what they created) and the error goes on."""
+    sinks: list[Sink] = []
+    try:
+        for opener in openers:
+            sinks.append(opener())
+    except BaseException:
+        _abort(sinks)
+        raise
+    return sinks
 
 
 def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recording: Path | None = None,
-        recorder_options: dict | None = None, start: int = 0, stop: int | None = None,
+        recorder_options: RecorderOptions | None = None, start: int = 0, stop: int | None = None,
         truth: tuple[Points, Points] | None = None, gate: float = 3.0,
         on_frame: Callable[[Frame, FrameResult], None] | None = None) -> RunSummary:
     """Track ``clip`` frames ``start <= index < stop`` with the usual sinks (what ``wfviz
@@ -163,28 +198,25 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     done are kept (``interrupted`` and ``signal`` set), on any error, or when no frame was
     processed, the partial files are removed (no frames: ValueError).
     """
+    stepper = SingleRun(tracker)
     source = str(clip.path) if clip.path is not None else clip.name
-    check_frame_size(clip.shape, source, min_frame_side(tracker.config))
+    check_frame_size(clip.shape, source, stepper.min_frame_side())
     for p in (tracks_csv, recording):
         if p is not None:
             check_writable(p)
-    sinks: list[Sink] = []
-    score = ScoreSink(truth, gate) if truth is not None else None
+    openers: list[Callable[[], Sink]] = []
+    if truth is not None:
+        openers.append(lambda: ScoreSink(truth, gate))
+    if tracks_csv is not None:
+        openers.append(lambda: TracksSink(tracks_csv))
+    if recording is not None:
+        openers.append(lambda: RecordingSink(recording, tracker.name, clip, recorder_options))
+    if on_frame is not None:
+        openers.append(lambda: CallbackSink(on_frame))
     with StopSignals() as signals:  # a signal while the outputs open: they are kept, empty
-        try:
-            if score is not None:
-                sinks.append(score)
-            if tracks_csv is not None:
-                sinks.append(TracksSink(tracks_csv))
-            if recording is not None:
-                sinks.append(RecordingSink(recording, tracker.name, clip, recorder_options, score))
-            if on_frame is not None:
-                sinks.append(CallbackSink(on_frame))
-        except BaseException:
-            _abort(sinks)
-            raise
-        summary = drive(clip, tracker, sinks, start=start, stop=stop, signals=signals)
-    return replace(summary, scores=score.scores) if score is not None else summary
+        sinks = open_sinks(openers)
+        summary = drive(clip, stepper, sinks, start=start, stop=stop, signals=signals)
+    return replace(summary, scores=summary.facts.get(EvalResult)) if truth is not None else summary
 
 
 def _generator(frames: Iterator[Frame]) -> Generator[Frame, None, None]:

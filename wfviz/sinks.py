@@ -1,67 +1,174 @@
-"""What the drive loop (:func:`wfviz.run.drive`) feeds each frame's result to: the tracks CSV, the
-recording, the scores against truth, progress callbacks and per-stage timing.
+"""What the drive loop (:func:`wfviz.run.drive`) feeds each frame's results to: the tracks CSV, the
+recording, the scores against truth, progress callbacks, per-stage timing (and ``wfviz
+compare``'s disagreement finder and comparison recording, :mod:`wfviz.compare.session`).
 
-A sink takes every :class:`Step`, then either :meth:`Sink.finish` (the run ended, or was stopped
-by a signal: complete the output) or :meth:`Sink.abort` (an error: remove what is partial). The
-loop calls them in list order, so a sink may read one listed before it (the recording logs the
-scores the :class:`ScoreSink` computed)."""
+Each frame, the loop first has every sink ``publish`` what it computes of the frame into the
+step's :class:`Facts` (a run's matches and errors against truth, the disagreements of a
+comparison), then gives every sink the ``step``. At the end every sink ``conclude``'s (publishes
+what it computed of the whole run into the end's facts: the scores) before any ``finish``'es (the
+run ended, or a signal stopped it: complete the output); on an error every sink ``abort``'s
+instead (removes what is partial). A sink reads what others publish, never the other sinks, so
+their order in the list does not matter."""
 
 from __future__ import annotations
 
 import signal
 from collections.abc import Callable, Iterator
 from contextlib import contextmanager
-from dataclasses import dataclass
+from dataclasses import dataclass, field
+from functools import cached_property
 from pathlib import Path
-from typing import Any, Protocol
+from typing import Any, Protocol, TextIO, TypeVar
 
 import numpy as np
 
-from wfviz.evaluate import EvalResult, Points, evaluate_points, format_table, frame_errors
+from wfviz.evaluate import EvalResult, FrameErrors, Point, Points, evaluate_points, format_table, frame_errors
 from wfviz.io.frames import Clip, Frame
-from wfviz.io.outputs import OutputError, TracksWriter, replace_into, temp_path
+from wfviz.io.outputs import OutputError, replace_into, temp_path
+from wfviz.record_options import RecorderOptions
 from wfviz.trackers.base import FrameResult
+from wfviz.tracking import TrackState
+
+T = TypeVar("T")
+
+TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]
+
+
+class Facts:
+    """What the sinks computed of one frame (or, at the end, of the whole run), one value per
+    type and run (``run``: the index in the stepper's runs; 0 for a single tracker)."""
+
+    def __init__(self) -> None:
+        self._values: dict[tuple[type, int], object] = {}
+
+    def put(self, value: object, run: int = 0) -> None:
+        self._values[type(value), run] = value
+
+    def get(self, kind: type[T], run: int = 0) -> T | None:
+        value = self._values.get((kind, run))
+        return value if isinstance(value, kind) else None
 
 
 @dataclass(frozen=True)
 class Step:
-    """One frame through the loop: the frame, the tracker's result, and the milliseconds spent
-    waiting for the frame (its decoding, unless read ahead) and in ``tracker.step``."""
+    """One frame through the loop: the frame, each run's result (one run: a single tracker),
+    the milliseconds spent waiting for the frame (its decoding, unless read ahead) and in the
+    stepper's step, each run's milliseconds as it would cost alone, and what the sinks
+    published of the frame."""
 
     frame: Frame
-    result: FrameResult
+    results: tuple[FrameResult, ...]
     wait_ms: float
     step_ms: float
+    run_ms: tuple[float, ...] = ()
+    facts: Facts = field(default_factory=Facts)
+
+    @property
+    def result(self) -> FrameResult:
+        """The (first) run's result."""
+        return self.results[0]
 
 
 @dataclass(frozen=True)
 class RunEnd:
-    """How the loop ended: frames processed, and the signal that stopped it (None: the end)."""
+    """How the loop ended: frames processed, the signal that stopped it (None: the end), wall
+    seconds since the first frame was asked for, and what the sinks published of the run."""
 
     frames: int
     signum: int | None
+    seconds: float = 0.0
+    facts: Facts = field(default_factory=Facts)
 
 
 class Sink(Protocol):
-    """A consumer of the loop's steps."""
+    """A consumer of the loop's steps (see the module docstring for the order of the calls)."""
+
+    def publish(self, step: Step) -> None: ...
 
     def step(self, step: Step) -> None: ...
+
+    def conclude(self, end: RunEnd) -> None: ...
 
     def finish(self, end: RunEnd) -> None: ...
 
     def abort(self) -> None: ...
 
 
-class TracksSink:
-    """The tracks CSV (``frame,track_id,x,y,confirmed``), written to a temporary name and renamed
-    into place when the run finishes."""
+class BaseSink:
+    """A sink that does nothing: subclasses override what they need."""
+
+    def publish(self, step: Step) -> None:
+        pass
+
+    def step(self, step: Step) -> None:
+        pass
+
+    def conclude(self, end: RunEnd) -> None:
+        pass
+
+    def finish(self, end: RunEnd) -> None:
+        pass
+
+    def abort(self) -> None:
+        pass
+
+
+def confirmed_points(result: FrameResult) -> list[Point]:
+    """(track_id, x, y) of the confirmed tracks of a result: what is scored against truth."""
+    return [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
+
+
+class TracksWriter:
+    """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track,
+    written to a unique temporary file and renamed to ``path`` by :meth:`close`."""
 
     def __init__(self, path: Path) -> None:
+        self.path = path
+        self.temp = temp_path(path)
+        try:
+            self._fh: TextIO = open(self.temp, "w", newline="", encoding="utf-8")
+            self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
+        except OSError as exc:
+            self.temp.unlink(missing_ok=True)
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+    def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
+        """Append the rows of one frame."""
+        try:
+            self._fh.write("".join(
+                f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
+                for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+
+    def close(self) -> None:
+        """Flush, close and rename into place."""
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        replace_into(self.temp, self.path)
+
+    def abort(self) -> None:
+        """Close and remove the partial file."""
+        try:
+            self._fh.close()
+        except OSError:  # e.g. the disk is full: the buffered rows cannot be flushed
+            pass
+        self.temp.unlink(missing_ok=True)
+
+
+class TracksSink(BaseSink):
+    """The tracks CSV (``frame,track_id,x,y,confirmed``) of run ``run``, written to a temporary
+    name and renamed into place when the run finishes."""
+
+    def __init__(self, path: Path, run: int = 0) -> None:
         self.writer: TracksWriter | None = TracksWriter(path)
+        self.run = run
 
     def step(self, step: Step) -> None:
         assert self.writer is not None
-        self.writer.write(step.frame.index, step.result.tracks)
+        self.writer.write(step.frame.index, step.results[self.run].tracks)
 
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:
@@ -74,48 +181,62 @@ class TracksSink:
             self.writer = None
 
 
-class ScoreSink:
-    """Scores against truth (visible, hidden points) over the frames processed; ``scores`` is set
-    when the run finishes."""
+class FrameTruth:
+    """Run ``run``'s confirmed tracks on a frame against the frame's truth: the visible and
+    hidden targets, and (computed when first asked) the frame's errors, matched as the scores
+    match them (:func:`wfviz.evaluate.frame_errors`). Published by :class:`ScoreSink`."""
 
-    def __init__(self, truth: tuple[Points, Points], gate: float) -> None:
+    def __init__(self, shown: list[Point], hidden: list[Point], points: list[Point], gate: float) -> None:
+        self.shown, self.hidden, self.points, self.gate = shown, hidden, points, gate
+
+    @cached_property
+    def errors(self) -> FrameErrors:
+        return frame_errors(self.points, self.shown, self.gate, self.hidden)
+
+
+class ScoreSink(BaseSink):
+    """Scores of run ``run`` against truth (visible, hidden points) over the frames processed:
+    publishes each frame's :class:`FrameTruth` and, at the end, the :class:`EvalResult`
+    (``scores`` is set then too)."""
+
+    def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0) -> None:
         self.shown, self.hidden = truth
         self.gate = gate
+        self.run = run
         self.tracked: Points = {}
         self.scores: EvalResult | None = None
 
-    def confirmed_points(self, result: FrameResult) -> list[tuple[int, float, float]]:
-        return [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
+    def publish(self, step: Step) -> None:
+        f = step.frame.index
+        points = confirmed_points(step.results[self.run])
+        self.tracked[f] = points
+        step.facts.put(FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), points, self.gate), self.run)
 
-    def step(self, step: Step) -> None:
-        self.tracked[step.frame.index] = self.confirmed_points(step.result)
-
-    def finish(self, end: RunEnd) -> None:
+    def conclude(self, end: RunEnd) -> None:
         if self.tracked:
             span = set(self.tracked)
             self.scores = evaluate_points(self.tracked, {f: v for f, v in self.shown.items() if f in span},
                                           self.gate, {f: v for f, v in self.hidden.items() if f in span})
-
-    def abort(self) -> None:
-        pass
+            end.facts.put(self.scores, self.run)
 
 
-class RecordingSink:
-    """The Rerun recording (:mod:`wfviz.record`; rerun is imported only here, when recording):
-    every stage of every frame, the clip's skipped-input problems, per-frame errors against
-    truth and the final scores when a :class:`ScoreSink` is given, and a warning when a signal
-    stopped the run. Written to a temporary name, renamed into place on finish."""
+class RecordingSink(BaseSink):
+    """The Rerun recording of run ``run`` (:mod:`wfviz.record`; rerun is imported only here,
+    when recording): every stage of every frame, the clip's skipped-input problems, per-frame
+    errors against truth and the final scores when a :class:`ScoreSink` publishes them, and a
+    warning when a signal stopped the run. Written to a temporary name, renamed into place on
+    finish."""
 
-    def __init__(self, path: Path, tracker: str, clip: Clip, options: dict[str, Any] | None = None,
-                 scores: ScoreSink | None = None) -> None:
+    def __init__(self, path: Path, tracker: str, clip: Clip, options: RecorderOptions | None = None,
+                 run: int = 0) -> None:
         from wfviz.record import open_recorder
 
         self.path, self.temp = path, temp_path(path)
-        self.scores = scores
+        self.run = run
         self.skip_log = _SkipLog(clip)
         self.frames = 0
         try:
-            self.recorder: Any = open_recorder(tracker, self.temp, **(options or {}))
+            self.recorder: Any = open_recorder(tracker, self.temp, options or RecorderOptions())
         except BaseException:
             self.temp.unlink(missing_ok=True)
             raise
@@ -123,18 +244,18 @@ class RecordingSink:
     def step(self, step: Step) -> None:
         rec = self.recorder
         with self._errors():
-            rec.log(step.frame, step.result)
+            rec.log(step.frame, step.results[self.run])
             self.skip_log(rec)
-        if self.scores is not None:
-            f, s = step.frame.index, self.scores
-            shown, hidden = s.shown.get(f, []), s.hidden.get(f, [])
-            rec.log_truth(shown, hidden, frame_errors(s.confirmed_points(step.result), shown, s.gate, hidden))
+        truth = step.facts.get(FrameTruth, self.run)
+        if truth is not None:
+            rec.log_truth(truth.shown, truth.hidden, truth.errors)
         self.frames += 1
 
     def finish(self, end: RunEnd) -> None:
         rec = self.recorder
-        if self.scores is not None and self.scores.scores is not None:
-            rec.log_scores(format_table(self.scores.scores))
+        scores = end.facts.get(EvalResult, self.run)
+        if scores is not None:
+            rec.log_scores(format_table(scores))
         self.skip_log(rec)
         if end.signum is not None:
             name = signal.Signals(end.signum).name
@@ -182,20 +303,15 @@ class _SkipLog:
                 recorder.log_message(f"skipped: {problem}", level="WARN")
 
 
-class CallbackSink:
-    """Calls ``fn(frame, result)`` after the other sinks took the frame (progress bars, samplers)."""
+class CallbackSink(BaseSink):
+    """Calls ``fn(frame, result)`` with each frame (progress bars, samplers; last in the list,
+    it is called after the other sinks took the frame)."""
 
     def __init__(self, fn: Callable[[Frame, FrameResult], None]) -> None:
         self.fn = fn
 
     def step(self, step: Step) -> None:
         self.fn(step.frame, step.result)
-
-    def finish(self, end: RunEnd) -> None:
-        pass
-
-    def abort(self) -> None:
-        pass
 
 
 @dataclass(frozen=True)
@@ -208,7 +324,7 @@ class StageTiming:
     p95: float
 
 
-class TimingSink:
+class TimingSink(BaseSink):
     """Per-stage milliseconds (the tracker's ``timings``) and the wait for each frame (decoding),
     leaving out the first ``warmup`` frames."""
 
@@ -227,12 +343,6 @@ class TimingSink:
         self.decode.append(step.wait_ms)
         for stage, ms in step.result.timings.items():
             self.stages.setdefault(stage, []).append(ms)
-
-    def finish(self, end: RunEnd) -> None:
-        pass
-
-    def abort(self) -> None:
-        pass
 
     def timings(self) -> tuple[StageTiming, tuple[StageTiming, ...]]:
         """Decoding, then each stage (``total`` last)."""

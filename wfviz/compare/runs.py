@@ -5,6 +5,7 @@ stages before detection are the same share one front end (:class:`SharedPrepare`
 from __future__ import annotations
 
 import re
+import time
 from dataclasses import dataclass
 from pathlib import Path
 from typing import Any, Callable
@@ -12,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from wfviz.config import config_to_toml, load_config
+from wfviz.io.frames import Frame
 from wfviz.stages.front_end import FrontEnd, PreparedFrame
 from wfviz.trackers import TRACKERS, config_class
 
@@ -111,8 +113,6 @@ class SharedPrepare:
 
     def get(self, asker: object, raw: np.ndarray, lap: Callable[[str], None], whole: bool,
             update_horizon: bool) -> PreparedFrame:
-        import time
-
         if raw is not self._raw or self._prepared is None:
             t0 = time.perf_counter()
             self._prepared = self.front.prepare(raw, lap, whole, update_horizon)
@@ -140,6 +140,30 @@ class SharedFrontEnd(FrontEnd):
     def shared_ms(self) -> float:
         """This frame's preparation cost when another tracker paid it (else 0)."""
         return self.shared.cost_ms if self.shared.payer is not self else 0.0
+
+
+class RunGroup:
+    """The trackers of a comparison as one stepper of the drive loop (:class:`wfviz.run.Stepper`):
+    every tracker steps on a frame, in run order, each timed as it would cost alone (its own
+    time plus the shared front end's when another run paid it). (Stepping the front-end groups
+    in threads gained nothing on 2 cores: the frame reader and Rerun's writer threads already
+    use the second core; docs/performance.md.)"""
+
+    def __init__(self, trackers: list[Any]) -> None:
+        self.trackers = trackers
+
+    def min_frame_side(self) -> int:
+        return max(t.min_frame_side() for t in self.trackers)
+
+    def advance(self, frame: Frame) -> tuple[tuple[Any, ...], tuple[float, ...]]:
+        results, ms = [], []
+        for trk in self.trackers:
+            t0 = time.perf_counter()
+            results.append(trk.step(frame))
+            own = (time.perf_counter() - t0) * 1e3
+            front = getattr(trk, "front", None)
+            ms.append(own + (front.shared_ms() if isinstance(front, SharedFrontEnd) else 0.0))
+        return tuple(results), tuple(ms)
 
 
 def make_trackers(runs: list[RunSpec]) -> tuple[list[Any], list[int]]:

@@ -29,7 +29,7 @@ import itertools
 import math
 import os
 import warnings
-from collections.abc import Iterable, Iterator, Sequence
+from collections.abc import Callable, Iterable, Iterator, Sequence
 from contextlib import contextmanager
 from pathlib import Path
 from typing import Literal
@@ -48,7 +48,9 @@ COMPANION_FILES = frozenset({"truth.csv", "meta.json"})
 FRAMES_SUBFOLDER = "frames"  # CLIP/frames/ beside CLIP/truth.csv: opened when CLIP itself holds no images
 SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
              f"({' '.join(IMAGE_SUFFIXES)}), a .npy stack or synth:SCENARIO")
-SYNTH_PREFIX = "synth:"
+#: Clip sources named by a prefix (``synth:`` for the built-in scenarios), registered by the
+#: packages that provide them (:func:`register_source`): ``prefix -> opener(spec, fps)``.
+SOURCES: dict[str, Callable[[str, float | None], Clip]] = {}
 
 LumaMode = Literal["auto", "raw", "expand", "bgr"]
 #: Codec pixel-format tags (``CAP_PROP_CODEC_PIXEL_FORMAT``) whose first plane is 8-bit luma.
@@ -103,8 +105,9 @@ def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bo
     raising. ``nan_as_zero``: NaN/inf pixels of float frames become 0 (warned once) instead
     of raising.
     """
-    if str(path).startswith(SYNTH_PREFIX):
-        return synthetic_clip(str(path), fps)
+    for prefix, opener in SOURCES.items():
+        if str(path).startswith(prefix):
+            return opener(str(path), fps)
     p = Path(path)
     if not p.exists():
         raise ClipError(f"{p}: no such file or folder")
@@ -123,20 +126,10 @@ def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bo
     raise ClipError(f"{p}: unsupported input; expected {SUPPORTED}")
 
 
-def synthetic_clip(spec: str, fps: float | None = None) -> Clip:
-    """``synth:NAME`` or ``synth:NAME:SEED``: a built-in scenario rendered lazily, frame by
-    frame (nothing written; ``--stop`` shortens it)."""
-    from wfviz.synth.scenarios import list_scenarios, make_scenario
-
-    name, _, seed = spec[len(SYNTH_PREFIX):].partition(":")
-    names = [i.name for i in list_scenarios()]
-    if name not in names:
-        raise ClipError(f"{spec}: unknown scenario '{name}' (available: {', '.join(names)})")
-    if seed and not seed.isdigit():
-        raise ClipError(f"{spec}: the seed must be a whole number >= 0, got '{seed}'")
-    if fps is not None:
-        raise ClipError(f"{spec}: --fps does not apply to a synthetic scenario (its rate is fixed)")
-    return make_scenario(name, seed=int(seed or 0))
+def register_source(prefix: str, opener: Callable[[str, float | None], Clip]) -> None:
+    """:func:`open_clip` opens a spec starting with ``prefix`` with ``opener(spec, fps)``
+    (``wfviz.synth`` registers ``synth:SCENARIO[:SEED]`` when imported)."""
+    SOURCES[prefix] = opener
 
 
 def check_frame_size(shape: tuple[int, int], source: str | Path, minimum: int = MIN_SIDE) -> None:

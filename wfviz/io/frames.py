@@ -96,7 +96,7 @@ def read_ahead(frames: Iterator[Frame], depth: int = 2) -> Iterator[Frame]:
                 if not put(frame):
                     return
             put(end)
-        except BaseException as exc:  # handed to the consumer
+        except BaseException as exc:  # noqa: BLE001 - handed to the consumer
             put(exc)
         finally:
             getattr(frames, "close", lambda: None)()

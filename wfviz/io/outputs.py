@@ -9,12 +9,9 @@ import shutil
 import tempfile
 from collections.abc import Iterable
 from pathlib import Path
-from typing import TextIO
 
 from wfviz.io.clip import IMAGE_SUFFIXES
-from wfviz.tracking import TrackState
 
-TRACKS_HEADER = ["frame", "track_id", "x", "y", "confirmed", "vx", "vy", "meeting"]
 TEMP_SUFFIX = ".wfviz-part"
 #: ``.NAME.PID.RANDOM.wfviz-part``: a temporary output of process PID (see :func:`temp_path`)
 _TEMP_NAME = re.compile(r"^\.(?P<name>.+)\.(?P<pid>\d+)\.[^.]+" + re.escape(TEMP_SUFFIX) + "$")
@@ -189,43 +186,3 @@ def check_writable(path: Path) -> None:
         probe.unlink()
     except OSError as exc:
         raise OutputError(f"{parent}: output folder is not writable ({exc.strerror})") from None
-
-
-class TracksWriter:
-    """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track,
-    written to a unique temporary file and renamed to ``path`` by :meth:`close`."""
-
-    def __init__(self, path: Path) -> None:
-        self.path = path
-        self.temp = temp_path(path)
-        try:
-            self._fh: TextIO = open(self.temp, "w", newline="", encoding="utf-8")
-            self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
-        except OSError as exc:
-            self.temp.unlink(missing_ok=True)
-            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
-
-    def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
-        """Append the rows of one frame."""
-        try:
-            self._fh.write("".join(
-                f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
-                for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
-
-    def close(self) -> None:
-        """Flush, close and rename into place."""
-        try:
-            self._fh.close()
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
-        replace_into(self.temp, self.path)
-
-    def abort(self) -> None:
-        """Close and remove the partial file."""
-        try:
-            self._fh.close()
-        except OSError:  # e.g. the disk is full: the buffered rows cannot be flushed
-            pass
-        self.temp.unlink(missing_ok=True)

@@ -7,6 +7,7 @@ import importlib
 from pathlib import Path
 
 from wfviz.record.recorder import Recorder, track_color
+from wfviz.record_options import RecorderOptions
 from wfviz.trackers import TRACKERS
 
 
@@ -16,9 +17,9 @@ def recorder_class(tracker: str) -> type[Recorder]:
     return getattr(importlib.import_module(module), name)
 
 
-def open_recorder(tracker: str, path: Path, **kwargs: object) -> Recorder:
+def open_recorder(tracker: str, path: Path, options: RecorderOptions) -> Recorder:
     """The logging adapter for ``tracker``, writing to ``path``."""
-    return recorder_class(tracker)(path, tracker=tracker, **kwargs)  # type: ignore[arg-type]
+    return recorder_class(tracker)(path, tracker, options)
 
 
-__all__ = ["Recorder", "open_recorder", "recorder_class", "track_color"]
+__all__ = ["Recorder", "RecorderOptions", "open_recorder", "recorder_class", "track_color"]

@@ -5,6 +5,8 @@ log, the closing table). See docs/recording.md."""
 
 from __future__ import annotations
 
+import signal
+from dataclasses import replace
 from pathlib import Path
 from typing import Any
 
@@ -14,12 +16,15 @@ import rerun.blueprint as rrb
 
 from wfviz.compare.differences import KINDS, FrameComparison
 from wfviz.compare.runs import RunSpec
-from wfviz.evaluate import format_table, frame_errors
+from wfviz.compare.summary import CompareSummary, format_summary, summarize
+from wfviz.evaluate import format_table
 from wfviz.io.frames import Frame
+from wfviz.io.outputs import replace_into, temp_path
 from wfviz.record import recorder_class
 from wfviz.record.images import ImageLog
 from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer
-from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
+from wfviz.record_options import RecorderOptions
+from wfviz.sinks import BaseSink, FrameTruth, RunEnd, Step
 
 #: images a run sharing another run's front end leaves to it (the same arrays)
 SHARED_IMAGES = frozenset({"suppressed/image", "suppressed/noise"})
@@ -65,15 +70,17 @@ def compare_blueprint(labels: list[str], image_of: list[str], truth: bool) -> rr
     )
 
 
-class CompareRecorder:
-    """Writes one comparison recording (see the module docstring)."""
+class CompareRecorder(BaseSink):
+    """Writes one comparison recording (see the module docstring): a sink of the drive loop,
+    reading each frame's :class:`FrameComparison` (the :class:`~wfviz.compare.session.DisagreementSink`'s)
+    and every run's :class:`FrameTruth` (its :class:`~wfviz.sinks.ScoreSink`'s, with truth) from
+    what the sinks publish. ``options``: the source shown and the images (as a single
+    recording's); ``truth``: truth is given (the metrics against it are shown)."""
 
-    def __init__(self, path: Path, runs: list[RunSpec], groups: list[int], *, source: str,
-                 image_every: int = 1, exact_every: int = EXACT_EVERY, jpeg_quality: int = PREVIEW_QUALITY,
-                 truth: bool = False, gate: float = 3.0) -> None:
-        from wfviz.io.outputs import temp_path
-
+    def __init__(self, path: Path, runs: list[RunSpec], groups: list[int], options: RecorderOptions, *,
+                 truth: bool = False) -> None:
         self.path, self.temp = path, temp_path(path)
+        self.specs, self.groups = list(runs), list(groups)
         self.labels = [r.label for r in runs]
         self.rec = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
         image_of = [self.labels[g] for g in groups]
@@ -83,16 +90,15 @@ class CompareRecorder:
         except BaseException:
             self.temp.unlink(missing_ok=True)
             raise
-        self.images, self.gate = ImageLog(self.rec, image_every, exact_every, jpeg_quality), gate
+        self.images = ImageLog(self.rec, options.image_every, options.exact_every, options.jpeg_quality)
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self.runs: list[Any] = []
         for i, (r, g) in enumerate(zip(runs, groups)):
             cls = recorder_class(r.tracker)
-            self.runs.append(cls(None, source=f"{source} ({r.source})", tracker=r.tracker, config_text=r.config_text,
-                                 image_every=image_every, exact_every=exact_every, jpeg_quality=jpeg_quality,
-                                 trail_length=r.config.tracking.trail_length,
-                                 stream=self.rec, root=f"runs/{r.label}", raw_image=False,
+            own = replace(options, source=f"{options.source} ({r.source})", config_text=r.config_text,
+                          trail_length=r.config.tracking.trail_length, live=None)
+            self.runs.append(cls(None, r.tracker, own, stream=self.rec, root=f"runs/{r.label}", raw_image=False,
                                  shared_images=SHARED_IMAGES if g != i else frozenset()))
         self.metrics = tuple(m for m, _ in METRICS if truth or m in ("tracks", "ms"))
         for m in self.metrics:
@@ -104,20 +110,28 @@ class CompareRecorder:
             for i, (r, g) in enumerate(zip(runs, groups))), media_type=rr.MediaType.MARKDOWN), static=True)
         self._closed = False
 
-    def log(self, frame: Frame, results: list[Any], cmp: FrameComparison, ms: list[float],
-            shown: list | None, hidden: list | None) -> None:
-        """One frame: the raw image (see :class:`ImageLog`), every run's stages, the marks, the
-        disagreements that began or ended, the metrics."""
+    def step(self, step: Step) -> None:
+        cmp = step.facts.get(FrameComparison)
+        assert cmp is not None, "no DisagreementSink in the comparison"
+        self.log(step.frame, step.results, cmp, step.run_ms,
+                 [step.facts.get(FrameTruth, i) for i in range(len(self.runs))])
+
+    def finish(self, end: RunEnd) -> None:
+        self.close(summarize(self.specs, self.groups, end))
+
+    def log(self, frame: Frame, results: tuple[Any, ...], cmp: FrameComparison, ms: tuple[float, ...],
+            truths: list[FrameTruth | None]) -> None:
+        """One frame: the raw image (see :class:`ImageLog`), every run's stages (and its truth
+        and errors, with truth), the marks, the disagreements that began or ended, the metrics."""
         rec = self.rec
         rec.set_time("frame", sequence=frame.index)
         rec.set_time("time", duration=frame.time)
         if self.images.begin_frame(self.frames_logged, frame.index, frame.time):
             self.images.log("camera/image", frame.image)
-        for sub, result in zip(self.runs, results):
+        for sub, result, truth in zip(self.runs, results, truths):
             sub.log(frame, result)
-            if shown is not None:
-                pts = [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
-                sub.log_truth(shown, hidden or [], frame_errors(pts, shown, self.gate, hidden or []))
+            if truth is not None:
+                sub.log_truth(truth.shown, truth.hidden, truth.errors)
         for kind in KINDS:
             ms_ = [m for m in cmp.marks if m.kind == kind]
             rec.log(f"compare/marks/{kind}", rr.Points2D(
@@ -136,14 +150,9 @@ class CompareRecorder:
         self.frames_logged += 1
         self.columns.end_frame()
 
-    def finish(self, summary: Any) -> None:
+    def close(self, summary: CompareSummary) -> None:
         """The closing table (``compare/summary``), every run's scores, a warning when a signal
         stopped the run; the file is completed and renamed into place."""
-        import signal
-
-        from wfviz.compare.session import format_summary
-        from wfviz.io.outputs import replace_into
-
         self.rec.log("compare/summary", rr.TextDocument(f"```\n{format_summary(summary)}\n```",
                                                         media_type=rr.MediaType.MARKDOWN), static=True)
         for sub, outcome in zip(self.runs, summary.runs):

@@ -17,8 +17,8 @@ from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote, display
 from wfviz.io.frames import Frame
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
-from wfviz.record.live import Live, LiveMirror, live_sink
-from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
+from wfviz.record.live import LiveMirror, live_sink
+from wfviz.record_options import RecorderOptions
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
@@ -236,21 +236,23 @@ class RootedStream:
 class Recorder:
     """Writes one recording; subclasses (one per tracker) add tracker-specific stages.
 
-    ``image_every`` logs the raw and stage images every N frames (0 = never), exact (lossless)
-    on the first image frame of every ``exact_every`` frames and JPEG previews at ``jpeg_quality``
-    between (:mod:`wfviz.record.images`); overlays, scalars and text are logged every frame.
+    The options' ``image_every`` logs the raw and stage images every N frames (0 = never), exact
+    (lossless) on the first image frame of every ``exact_every`` frames and JPEG previews at
+    ``jpeg_quality`` between (:mod:`wfviz.record.images`); overlays, scalars and text are logged
+    every frame.
     """
 
-    def __init__(self, path: Path | None, *, source: str, tracker: str, config_text: str,
-                 image_every: int = 1, trail_length: int = 60, jpeg_quality: int = PREVIEW_QUALITY,
-                 exact_every: int = EXACT_EVERY,
+    def __init__(self, path: Path | None, tracker: str, options: RecorderOptions, *,
                  stream: rr.RecordingStream | None = None, root: str = "", raw_image: bool = True,
-                 shared_images: frozenset[str] = frozenset(), live: Live | None = None) -> None:
-        """``stream`` and ``root``: write into another recording, every entity below ``root``
-        (``wfviz compare``'s ``runs/<label>``), which owns the file, the time and the blueprint;
+                 shared_images: frozenset[str] = frozenset()) -> None:
+        """``options``: what the recording is asked for (:class:`RecorderOptions`). ``stream``
+        and ``root``: write into another recording, every entity below ``root`` (``wfviz
+        compare``'s ``runs/<label>``), which owns the file, the time and the blueprint;
         ``raw_image``: log the raw frame (False: the owner logs it once); ``shared_images``:
-        image entities another run of the same front end logs instead; ``live``: stream to a
-        viewer or serve the run as well as writing the file (:mod:`wfviz.record.live`)."""
+        image entities another run of the same front end logs instead. With ``options.live``, the
+        run is streamed to a viewer or served as well as written to the file
+        (:mod:`wfviz.record.live`)."""
+        live = options.live
         self._file: rr.RecordingStream | None = None
         if stream is None:
             self._file = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
@@ -270,17 +272,17 @@ class Recorder:
         self.live = live
         self._live_ended = False
         self.shared_images = shared_images
-        self.images = ImageLog(self.rec, image_every, exact_every, jpeg_quality)
+        self.images = ImageLog(self.rec, options.image_every, options.exact_every, options.jpeg_quality)
         self._noise_logged: object | None = None  # the noise estimate last logged as an image
         self._trails: dict[int, deque] = {}
-        self._trail_length = trail_length
+        self._trail_length = options.trail_length
         self._labelled: set[int] = set()
         self.confirmed_ids: set[int] = set()
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self._now = (0, 0.0)  # (frame, time) being logged
         self.rec.log("config", rr.TextDocument(
-            f"# wfviz {tracker}\n\nSource: `{display(source)}`\n\n```toml\n{config_text}\n```",
+            f"# wfviz {tracker}\n\nSource: `{display(options.source)}`\n\n```toml\n{options.config_text}\n```",
             media_type=rr.MediaType.MARKDOWN), static=True)
 
     # -- layout ---------------------------------------------------------------------------

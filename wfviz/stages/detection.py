@@ -89,13 +89,6 @@ def local_stats(residual: np.ndarray, region: np.ndarray, window: int) -> tuple[
     return mean, np.sqrt(np.maximum(var, 1e-12))
 
 
-def local_threshold(residual: np.ndarray, region: np.ndarray, k_sigma: float, window: int) -> np.ndarray:
-    """Threshold map = local mean + k * local std of the residual (a cell-averaging CFAR, so
-    textured clutter raises its own bar)."""
-    mean, std = local_stats(residual, region, window)
-    return mean + k_sigma * std
-
-
 def _component_stats(lab: np.ndarray, xs: np.ndarray, ys: np.ndarray, n: int) -> np.ndarray:
     """cv2-style stats (x, y, width, height, area) of labels 0..n-1 from their pixels (lab, xs, ys)."""
     stats = np.zeros((n, 5), dtype=np.int64)

@@ -18,7 +18,7 @@ from pathlib import Path
 import cv2
 import numpy as np
 
-from wfviz.io.clip import opencv_name, write_image
+from wfviz.io.clip import ClipError, opencv_name, register_source, write_image
 from wfviz.io.frames import Frame
 from wfviz.synth.clip import GeneratedClip, TruthRow
 from wfviz.synth.camera import FisheyeCamera, az_el_to_dirs, dirs_to_az_el
@@ -502,3 +502,24 @@ def write_scenario(clip: ScenarioClip, out_dir: Path, avi: bool = False, *,
         (tmp / "meta.json").write_text(json.dumps(meta, indent=1) + "\n", encoding="utf-8")
 
     return write_folder(Path(out_dir), fill, by="wfviz synth", what="the scenario")
+
+
+#: ``synth:NAME[:SEED]``: a built-in scenario as a clip spec (:func:`wfviz.io.clip.open_clip`)
+SYNTH_PREFIX = "synth:"
+
+
+def synthetic_clip(spec: str, fps: float | None = None) -> ScenarioClip:
+    """``synth:NAME`` or ``synth:NAME:SEED``: a built-in scenario rendered lazily, frame by
+    frame (nothing written; ``--stop`` shortens it)."""
+    name, _, seed = spec[len(SYNTH_PREFIX):].partition(":")
+    names = [i.name for i in list_scenarios()]
+    if name not in names:
+        raise ClipError(f"{spec}: unknown scenario '{name}' (available: {', '.join(names)})")
+    if seed and not seed.isdigit():
+        raise ClipError(f"{spec}: the seed must be a whole number >= 0, got '{seed}'")
+    if fps is not None:
+        raise ClipError(f"{spec}: --fps does not apply to a synthetic scenario (its rate is fixed)")
+    return make_scenario(name, seed=int(seed or 0))
+
+
+register_source(SYNTH_PREFIX, synthetic_clip)  # open_clip("synth:...") once wfviz.synth is imported

@@ -10,6 +10,8 @@ from typing import Protocol
 
 import numpy as np
 
+from wfviz.config import HorizonConfig, SuppressionConfig
+from wfviz.io.clip import MIN_SIDE
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
 from wfviz.stages.horizon import Horizon
@@ -77,6 +79,23 @@ class Tracker(Protocol):
     def step(self, frame: Frame) -> FrameResult:
         """Process one frame."""
         ...
+
+    def min_frame_side(self) -> int:
+        """Smallest frame side (px) the configured windows fit in (:func:`min_side`); the drive
+        loop refuses smaller frames with one line."""
+        ...
+
+
+def min_side(suppression: SuppressionConfig | None = None, horizon: HorizonConfig | None = None) -> int:
+    """Smallest frame side the configured windows fit in (16 px with the defaults): the background
+    suppression's window and, when enabled, the horizon's ground-side variance window below the
+    edge (:data:`wfviz.io.clip.MIN_SIDE` at least)."""
+    side = MIN_SIDE
+    if suppression is not None:
+        side = max(side, int(suppression.size))
+    if horizon is not None and horizon.enabled:
+        side = max(side, int(horizon.variance_window) // 2 + int(horizon.step) + 2)
+    return side
 
 
 class StageTimer:

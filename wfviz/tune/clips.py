@@ -5,7 +5,8 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
-from wfviz.io.clip import SYNTH_PREFIX, open_clip
+from wfviz.io.clip import open_clip
+from wfviz.synth.scenarios import SYNTH_PREFIX  # registers synth: with open_clip
 
 
 @dataclass(frozen=True)
@@ -65,7 +66,7 @@ def study_clips(tune: list[str], validate: list[str], truth_dir: Path) -> list[S
             raise ValueError(f"{key}: given twice (a clip is either tuned on or validated on, once)")
     for arg, role in specs:
         spec, truth_arg = split_spec(arg)
-        clip = open_clip(spec)
+        open_clip(spec)  # a clip that cannot be opened fails here, before any trial
         base = _label(spec)
         seen[base] = seen.get(base, 0) + 1
         label = base if seen[base] == 1 else f"{base}-{seen[base]}"

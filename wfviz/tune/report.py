@@ -44,7 +44,7 @@ def folds_table(trials: list[Any], settings: StudySettings, k: int) -> tuple[lis
         ins.append(score[best.number])
         outs.append(held_score)
         lines.append(f"| {i + 1} | {', '.join(held)} | {best.number} | {_f(score[best.number])} | {_f(held_score)} |")
-    mean = (lambda xs: sum(xs) / len(xs) if xs else math.nan)
+    mean = (lambda xs: sum(xs) / len(xs) if xs else math.nan)  # noqa: E731
     return lines, mean(ins), mean(outs)
 
 
@@ -155,7 +155,7 @@ def _importance(trials: list[Any], settings: StudySettings) -> dict[str, float]:
             warnings.simplefilter("ignore")
             return get_param_importances(study, evaluator=PedAnovaImportanceEvaluator(),
                                          target=lambda t: sign * t.values[0])
-    except Exception:  # too few distinct values: no importance to show
+    except Exception:  # noqa: BLE001 - too few distinct values: no importance to show
         return {}
 
 

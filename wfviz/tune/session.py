@@ -8,7 +8,7 @@ from dataclasses import dataclass
 from pathlib import Path
 from typing import Any
 
-from wfviz.io.clip import SYNTH_PREFIX
+from wfviz.synth.scenarios import SYNTH_PREFIX
 from wfviz.tune.clips import StudyClip, study_clips, synth_truth, user_inputs
 from wfviz.tune.folder import JOURNAL, StudyFolder
 from wfviz.tune.outputs import ranked, trial_config, write_outputs
@@ -99,6 +99,7 @@ def record_trials(folder: StudyFolder, trials: list[Any], settings: StudySetting
     from wfviz.config import config_to_toml
     from wfviz.evaluate import read_truth
     from wfviz.io.clip import open_clip
+    from wfviz.record_options import RecorderOptions
     from wfviz.run import run
     from wfviz.trackers import make_tracker
 
@@ -113,8 +114,8 @@ def record_trials(folder: StudyFolder, trials: list[Any], settings: StudySetting
             path = folder.claim(folder.path / "recordings" / f"trial-{t.number}-{clip.label}.rrd")
             source = open_clip(clip.spec)
             tracker = make_tracker(settings.tracker, config)
-            options = dict(source=clip.spec, config_text=config_to_toml(config), image_every=1,
-                           trail_length=config.tracking.trail_length)
+            options = RecorderOptions(source=clip.spec, config_text=config_to_toml(config), image_every=1,
+                                      trail_length=config.tracking.trail_length)
             summary = run(source, tracker, recording=path, recorder_options=options, stop=settings.stop,
                           truth=read_truth(clip.truth), gate=settings.gate)
             written.append(path)

@@ -81,14 +81,14 @@ class StudyState:
     signal: int | None = None  # SIGINT or SIGTERM that stopped the run
 
 
-def _optuna():  # noqa: ANN202
+def _optuna():
     import optuna
 
     optuna.logging.set_verbosity(optuna.logging.WARNING)
     return optuna
 
 
-def open_study(out: Path, settings: StudySettings):  # noqa: ANN201
+def open_study(out: Path, settings: StudySettings):
     """The study in ``out`` (created, or loaded when its journal exists and its settings match:
     otherwise refused, the journal unchanged)."""
     optuna = _optuna()
@@ -125,7 +125,7 @@ def load_journal(journal: Path) -> Any:
         return optuna.load_study(study_name=STUDY_NAME, storage=storage)
     except KeyError:
         raise ValueError(f"{journal}: holds no wfviz study; use another --out") from None
-    except Exception as exc:  # a truncated, replaced or foreign file: JSON, Optuna or OS errors
+    except Exception as exc:  # noqa: BLE001 - a truncated, replaced or foreign file: JSON, Optuna or OS errors
         what = " ".join(str(exc).split()) or type(exc).__name__
         raise ValueError(f"{journal}: not a readable study journal ({what})") from None
 
@@ -153,7 +153,7 @@ def _inside(p: Param, v: Any) -> bool:
     return v is not None and p.low <= v <= p.high
 
 
-def _sampler(settings: StudySettings, position: int):  # noqa: ANN202
+def _sampler(settings: StudySettings, position: int):
     """The sampler of the study's ``position``-th finished trial: seeded from the study's seed
     and the position (not the trial number, which trials cut short by a stopped run use up), its
     other settings fixed, so that what it proposes depends on the finished trials only."""

@@ -88,7 +88,7 @@ def _run(task: TrialTask) -> TrialOutcome:
                                   "fa": result.fa_per_frame, "idsw": float(result.id_switches)}
     except KeyboardInterrupt:
         return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0)
-    except Exception as exc:  # a failing trial is recorded and the study goes on
+    except Exception as exc:  # noqa: BLE001 - a failing trial is recorded and the study goes on
         where = traceback.extract_tb(exc.__traceback__)[-1]
         error = f"{type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         return TrialOutcome(task.number, None, error.replace("\n", " "), time.perf_counter() - t0)

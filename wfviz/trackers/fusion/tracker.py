@@ -41,7 +41,7 @@ from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEnd
 from wfviz.stages.imaging_circle import ImagingCircle
-from wfviz.trackers.base import FrontEndTrackResult, StageTimer
+from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.fusion.config import FusionConfig
 from wfviz.trackers.fusion.features import (Features, box_corners, fused_cost, min_area_rects,
                                            scalar_phi)
@@ -201,6 +201,10 @@ class FusionTracker:
         return replace(dets, xy=feats.centre), feats
 
     # -- per frame ------------------------------------------------------------------------
+    def min_frame_side(self) -> int:
+        """Smallest frame side the suppression and horizon windows fit in."""
+        return min_side(self.config.suppression, self.config.horizon)
+
     def step(self, frame: Frame) -> FusionResult:
         """Run every stage on one frame."""
         fc = self.config.fusion
@@ -303,7 +307,7 @@ class FusionTracker:
     # -- association ----------------------------------------------------------------------
     def _ref_arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:
         refs = [self._refs.get(p.track_id) for p in preds]
-        get = (lambda attr: np.array([getattr(r, attr) if r else np.nan for r in refs], dtype=np.float64))
+        get = (lambda attr: np.array([getattr(r, attr) if r else np.nan for r in refs], dtype=np.float64))  # noqa: E731
         return get("area"), get("grey"), get("area0"), get("grey0")
 
     def _cost(self, preds: list[Prediction], pred_xy: np.ndarray, half: np.ndarray, feats: Features,

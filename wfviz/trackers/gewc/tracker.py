@@ -14,7 +14,7 @@ from wfviz.stages.front_end import FrontEnd
 from wfviz.stages.imaging_circle import ImagingCircle
 from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
-from wfviz.trackers.base import FrontEndTrackResult, StageTimer
+from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, TrackManager, gate_boxes
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
@@ -63,6 +63,10 @@ class GEWCTracker:
     def circle(self) -> ImagingCircle | None:
         """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
         return self.front.circle
+
+    def min_frame_side(self) -> int:
+        """Smallest frame side the suppression and horizon windows fit in."""
+        return min_side(self.config.suppression, self.config.horizon)
 
     def step(self, frame: Frame) -> GEWCResult:
         """Run every stage on one frame."""

@@ -58,10 +58,6 @@ class Segmentation:
     level_map: np.ndarray | None = None
     sigma_map: np.ndarray | None = None
 
-    def sigma_at(self, x: float, y: float) -> float:
-        """The detection map's local noise at image position (x, y)."""
-        return noise_at(self.sigma_map, self.sigma, x, y)
-
 
 def noise_at(sigma_map: np.ndarray | None, sigma: float, x: float, y: float) -> float:
     """``sigma_map`` at image position (x, y), clamped to the frame (``sigma`` without a map)."""

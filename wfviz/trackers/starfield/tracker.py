@@ -18,7 +18,7 @@ from scipy.spatial import cKDTree
 
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
-from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.base import FrameResult, StageTimer, min_side
 from wfviz.trackers.starfield.chains import (NEW, OUT, PREDICTED, RUN, STAR_LATER, Candidates, Chain, ChainManager,
                                     Found, Redetection)
 from wfviz.trackers.starfield.config import StarfieldConfig
@@ -224,6 +224,10 @@ class StarfieldTracker:
         return Found((float(pu), float(pv)), None, None, window, r.threshold)
 
     # -- the frame step -----------------------------------------------------------------------
+    def min_frame_side(self) -> int:
+        """Smallest frame side accepted (no suppression or horizon windows to fit)."""
+        return min_side()
+
     def step(self, frame: Frame) -> StarfieldResult:
         """Run every stage on one frame."""
         c = self.config

@@ -20,7 +20,7 @@ from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections, no_detections
 from wfviz.stages.horizon import HorizonTracker, search_region
 from wfviz.stages.imaging_circle import ImagingMask
-from wfviz.trackers.base import FrameResult, StageTimer
+from wfviz.trackers.base import FrameResult, StageTimer, min_side
 from wfviz.trackers.tbd.background import PixelBackground
 from wfviz.trackers.tbd.config import TBDConfig
 from wfviz.trackers.tbd.filter import BankOutput, RegionFilter
@@ -261,6 +261,10 @@ class TBDTracker:
         return np.column_stack([xs, ys]).astype(np.float64), score
 
     # -- one frame ----------------------------------------------------------------------------
+    def min_frame_side(self) -> int:
+        """Smallest frame side the horizon's windows fit in."""
+        return min_side(horizon=self.config.horizon)
+
     def step(self, frame: Frame) -> TBDResult:
         """Run every stage on one frame."""
         c = self.config
@@ -334,7 +338,7 @@ class TBDTracker:
         within ``tracking.id_gate``)."""
         rows = []
 
-        def conv(e, j):  # noqa: ANN001
+        def conv(e, j):
             s = e.state[j]
             return (s[2] + b.x0, s[0] + b.y0, s[3], s[1], float(e.amplitude[j]), e.std[j, 1], e.std[j, 0])
 

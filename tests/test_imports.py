@@ -1,0 +1,134 @@
+"""The import graph of ``wfviz``: no cycles, and the lowest layers import nothing above them.
+
+Every ``import`` statement counts, at module level or inside a function (an import deferred
+into a function still ties the layers together), except those under ``if TYPE_CHECKING:``.
+Importing ``a.b.c`` runs ``a/__init__`` and ``a/b/__init__`` first, so an import is an edge to
+the module and to each package above it (except the packages the importer is itself inside,
+which are already being imported)."""
+
+from __future__ import annotations
+
+import ast
+from pathlib import Path
+
+ROOT = Path(__file__).resolve().parent.parent
+
+
+def _modules() -> dict[str, Path]:
+    out = {}
+    for f in sorted((ROOT / "wfviz").rglob("*.py")):
+        parts = list(f.relative_to(ROOT).with_suffix("").parts)
+        if parts[-1] == "__init__":
+            parts.pop()
+        out[".".join(parts)] = f
+    return out
+
+
+def _imported(node: ast.Import | ast.ImportFrom, package: str, modules: dict[str, Path]) -> list[str]:
+    """The names ``node`` imports (absolute; ``from pkg import mod`` is the module when it is one)."""
+    if isinstance(node, ast.Import):
+        return [a.name for a in node.names]
+    base = node.module or ""
+    if node.level:
+        parts = package.split(".")[: len(package.split(".")) - node.level + 1]
+        base = ".".join(parts + ([base] if base else []))
+    return [f"{base}.{a.name}" if f"{base}.{a.name}" in modules else base for a in node.names]
+
+
+class _Imports(ast.NodeVisitor):
+    def __init__(self) -> None:
+        self.nodes: list[ast.Import | ast.ImportFrom] = []
+
+    def visit_If(self, node: ast.If) -> None:
+        test = node.test
+        if (isinstance(test, ast.Name) and test.id == "TYPE_CHECKING") or (
+                isinstance(test, ast.Attribute) and test.attr == "TYPE_CHECKING"):
+            for n in node.orelse:
+                self.visit(n)
+            return
+        self.generic_visit(node)
+
+    def visit_Import(self, node: ast.Import) -> None:
+        self.nodes.append(node)
+
+    def visit_ImportFrom(self, node: ast.ImportFrom) -> None:
+        self.nodes.append(node)
+
+
+def import_graph() -> dict[str, set[str]]:
+    """wfviz module -> the wfviz modules and packages importing it runs."""
+    modules = _modules()
+    graph: dict[str, set[str]] = {m: set() for m in modules}
+    for m, path in modules.items():
+        package = m if path.name == "__init__.py" else m.rpartition(".")[0]
+        visitor = _Imports()
+        visitor.visit(ast.parse(path.read_text(encoding="utf-8"), str(path)))
+        for node in visitor.nodes:
+            for name in _imported(node, package, modules):
+                parts = name.split(".")
+                for k in range(1, len(parts) + 1):
+                    target = ".".join(parts[:k])
+                    if target in modules and target != m and not m.startswith(target + "."):
+                        graph[m].add(target)
+    return graph
+
+
+def cycles(graph: dict[str, set[str]]) -> list[list[str]]:
+    """The strongly connected components of more than one module (Tarjan), each sorted."""
+    index: dict[str, int] = {}
+    low: dict[str, int] = {}
+    stack: list[str] = []
+    on_stack: set[str] = set()
+    found: list[list[str]] = []
+
+    def visit(v: str) -> None:
+        index[v] = low[v] = len(index)
+        stack.append(v)
+        on_stack.add(v)
+        for w in sorted(graph[v]):
+            if w not in index:
+                visit(w)
+                low[v] = min(low[v], low[w])
+            elif w in on_stack:
+                low[v] = min(low[v], index[w])
+        if low[v] == index[v]:
+            component = []
+            while True:
+                w = stack.pop()
+                on_stack.discard(w)
+                component.append(w)
+                if w == v:
+                    break
+            if len(component) > 1:
+                found.append(sorted(component))
+
+    for v in sorted(graph):
+        if v not in index:
+            visit(v)
+    return found
+
+
+def test_the_checker_finds_a_cycle() -> None:
+    assert cycles({"a": {"b"}, "b": {"c"}, "c": {"a"}, "d": {"a"}}) == [["a", "b", "c"]]
+    assert cycles({"a": {"b"}, "b": set()}) == []
+
+
+def test_no_import_cycle_inside_wfviz() -> None:
+    graph = import_graph()
+    assert len(graph) > 50 and "wfviz.io.clip" in graph["wfviz.io.outputs"]  # the graph was read
+    found = cycles(graph)
+    detail = "\n".join(" -> ".join(c) + "\n  " + "\n  ".join(f"{m} imports {sorted(graph[m] & set(c))}" for m in c)
+                       for c in found)
+    assert not found, f"import cycles inside wfviz:\n{detail}"
+
+
+def test_the_lowest_layers_import_nothing_above_them() -> None:
+    """``wfviz.io`` (reading clips, writing files) imports only ``wfviz.io``; ``wfviz.config``,
+    ``wfviz.evaluate`` and ``wfviz.record_options`` import no other wfviz module (clip sources
+    such as ``synth:`` register themselves from above, the tracks CSV writer lives with the sinks)."""
+    graph = import_graph()
+    for m, targets in graph.items():
+        if m.startswith("wfviz.io."):
+            assert all(t == "wfviz" or t.startswith("wfviz.io") for t in targets), (m, targets)
+    for m in ("wfviz.config", "wfviz.evaluate", "wfviz.record_options"):
+        assert graph[m] <= {"wfviz"}, (m, graph[m])
