@@ -4,7 +4,6 @@ from __future__ import annotations
 
 import re
 import subprocess
-import sys
 import tempfile
 import time
 from collections.abc import Iterator
@@ -14,12 +13,8 @@ from pathlib import Path
 import pytest
 from rerun.chunk import RrdReader
 
+from conftest import needs_vulkan, one_line_error, wfviz
 from wfviz.record.live import Live
-
-
-def wfviz(*args: str, cwd: Path, timeout: float = 300) -> subprocess.CompletedProcess:
-    return subprocess.run([sys.executable, "-m", "wfviz", *args], cwd=cwd, capture_output=True, text=True,
-                          timeout=timeout)
 
 
 def _frames(rrd: Path, entity: str = "/camera/image") -> list[int]:
@@ -30,13 +25,7 @@ def _frames(rrd: Path, entity: str = "/camera/image") -> list[int]:
     return sorted(set(out))  # a frame where the image kind switches has a row clearing the other
 
 
-def _vulkan_ready() -> bool:
-    from test_screenshot import _vulkan_missing
-
-    return _vulkan_missing() is None
-
-
-@pytest.mark.skipif(not _vulkan_ready(), reason="no Vulkan software driver (see tests/test_screenshot.py)")
+@needs_vulkan
 def test_connect_streams_to_a_headless_viewer_and_writes_the_file(tmp_path: Path) -> None:
     """A headless viewer on loopback receives every frame of the run; the file has them too."""
     from wfviz.record.screenshot import _connect, _find_viewer, _free_port, _kill_group
@@ -99,15 +88,6 @@ def test_live_options_are_checked(tmp_path: Path) -> None:
     assert Live("serve", bind="0.0.0.0", port=5).grpc_url == "rerun+http://127.0.0.1:5/proxy"
 
 
-def _one_line_error(proc: subprocess.CompletedProcess, *words: str) -> None:
-    """Exit 2 with one ``wfviz: error:`` line holding ``words``, no traceback."""
-    lines = proc.stderr.strip().splitlines()
-    assert proc.returncode == 2, proc.stderr
-    assert len(lines) == 1 and lines[0].startswith("wfviz: error: "), proc.stderr
-    for w in words:
-        assert w in lines[0], proc.stderr
-
-
 def _nothing_written(folder: Path) -> None:
     assert not [p for p in folder.rglob("*") if p.is_file()], list(folder.rglob("*"))
 
@@ -123,7 +103,7 @@ def test_bad_connect_urls_are_one_line(tmp_path: Path, url: str, problem: str) -
     """A --connect URL rerun cannot use: one line naming --connect and the problem, before any frame."""
     proc = wfviz("record", "synth:lowsnr-tbd:0", "--tracker", "tbd", "--stop", "2", "-o", "x.rrd",
                  "--connect", url, cwd=tmp_path, timeout=60)
-    _one_line_error(proc, f"--connect {url}", problem)
+    one_line_error(proc, f"--connect {url}", problem)
     _nothing_written(tmp_path)
 
 
@@ -131,7 +111,7 @@ def test_bad_connect_urls_are_one_line(tmp_path: Path, url: str, problem: str) -
                                            ("no such host!", "not an IP address or host name")])
 def test_bad_bind_addresses_are_one_line(tmp_path: Path, bind: str, problem: str) -> None:
     proc = wfviz("demo", "--frames", "2", "-o", "d.rrd", "--serve", "--bind", bind, cwd=tmp_path, timeout=60)
-    _one_line_error(proc, "--bind", problem)
+    one_line_error(proc, "--bind", problem)
     _nothing_written(tmp_path)
 
 
@@ -182,7 +162,7 @@ def test_serve_port_in_use_is_one_line(tmp_path: Path, bind: str) -> None:
         port = held.getsockname()[1]
         proc = wfviz("record", "synth:lowsnr-tbd:0", "--tracker", "tbd", "--stop", "2", "-o", "x.rrd", "--serve",
                      "--bind", bind, "--port", str(port), cwd=tmp_path, timeout=60)
-    _one_line_error(proc, f"--port {port}: address already in use")
+    one_line_error(proc, f"--port {port}: address already in use")
     _nothing_written(tmp_path)
 
 
@@ -202,7 +182,7 @@ def test_web_viewer_port_in_use_is_one_line(tmp_path: Path) -> None:
         held.listen()
         proc = wfviz("record", "synth:lowsnr-tbd:0", "--tracker", "tbd", "--stop", "2", "-o", "x.rrd", "--serve",
                      "--bind", "0.0.0.0", "--port", str(_free_port()), cwd=tmp_path, timeout=60)
-    _one_line_error(proc, f"web viewer port {WEB_PORT}", "already in use")
+    one_line_error(proc, f"web viewer port {WEB_PORT}", "already in use")
     _nothing_written(tmp_path)
 
 

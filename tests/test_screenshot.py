@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import ctypes.util
 import os
 from pathlib import Path
 
@@ -13,23 +12,8 @@ rr = pytest.importorskip("rerun")
 rrb = pytest.importorskip("rerun.blueprint")
 Image = pytest.importorskip("PIL.Image")
 
+from conftest import needs_vulkan  # noqa: E402
 from wfviz.record.screenshot import ScreenshotError, render_screenshot  # noqa: E402
-
-_ICD_DIRS = ("/usr/share/vulkan/icd.d", "/usr/local/share/vulkan/icd.d", "/etc/vulkan/icd.d")
-
-
-def _vulkan_missing() -> str | None:
-    """Why the Vulkan software driver is unusable here, or None if it looks installed."""
-    if ctypes.util.find_library("vulkan") is None:
-        return "Vulkan loader (libvulkan1) not installed"
-    if os.environ.get("VK_ICD_FILENAMES") or os.environ.get("VK_DRIVER_FILES"):
-        return None
-    if not any(Path(d).glob("lvp_icd*.json") for d in _ICD_DIRS):
-        return "Vulkan software driver lavapipe (mesa-vulkan-drivers) not installed"
-    return None
-
-
-needs_vulkan = pytest.mark.skipif(_vulkan_missing() is not None, reason=str(_vulkan_missing()))
 
 W, H = 1200, 800
 
