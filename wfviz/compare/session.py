@@ -12,7 +12,7 @@ from pathlib import Path
 from typing import Any
 
 from wfviz.compare.differences import KINDS, Disagreements, FrameComparison
-from wfviz.compare.runs import RunSpec, SharedFrontEnd, check_labels, make_trackers
+from wfviz.compare.runs import RunSpec, SharedSource, check_labels, make_trackers
 from wfviz.evaluate import EvalResult, Points
 from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip, read_ahead
@@ -101,8 +101,8 @@ def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: 
                         break
                     results, ms = [], []
                     for i, (trk, result, own) in enumerate(stepper.step(frame)):
-                        front = getattr(trk, "front", None)
-                        alone = own + (front.shared_ms() if isinstance(front, SharedFrontEnd) else 0.0)
+                        source = getattr(getattr(trk, "front", None), "source", None)
+                        alone = own + (source.shared_ms() if isinstance(source, SharedSource) else 0.0)
                         step = Step(frame, result, 0.0, own)
                         for sink in (scores[i], writers[i]):
                             if sink is not None:
