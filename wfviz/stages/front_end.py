@@ -297,7 +297,7 @@ class FrontEnd:
         #: the own stages before detection (None: the frames come from ``source``)
         self.preparer = Preparer(c) if source is None else None
         self.source: PreparedSource = source if source is not None else self.preparer
-        self._significance = not c.detection.mode == "cfar" and (
+        self._significance = c.detection.mode != "cfar" and (
             c.detection.significance or c.tracking.confirm_significance > 0)
 
     @property
