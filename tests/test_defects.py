@@ -51,7 +51,7 @@ def _run_hot_pixel_clip(trk):
     for f in frames(40):
         res = trk.step(f)
         confirmed_at |= {(round(t.y), round(t.x)) for t in res.tracks if t.confirmed}
-    flagged = {tuple(p) for p in res.bad_pixels}
+    flagged = {tuple(p) for p in res.front.bad_pixels}
     assert {(40, 50), (70, 20)} <= flagged
     assert not {(40, 50), (70, 20)} & confirmed_at
     return res, confirmed_at, flagged
@@ -92,7 +92,7 @@ def test_flagged_hot_pixels_are_not_detected():
         res = trk.step(f)
         seen += [(f.index, r, c) for r, c in flagged
                  if any(abs(x - c) < 1.5 and abs(y - r) < 1.5 for x, y in res.detections.xy)]
-        flagged = {(int(r), int(c)) for r, c in res.bad_pixels}
+        flagged = {(int(r), int(c)) for r, c in res.front.bad_pixels}
     assert {(40, 50), (70, 20)} <= flagged
     assert seen == []
 
@@ -111,7 +111,7 @@ def test_disabled_defects_let_hot_pixels_through_to_the_tracker():
     trk = make_tracker("gewc", _config(defects=False))
     for f in frames(20):
         res = trk.step(f)
-    assert len(res.bad_pixels) == 0
+    assert len(res.front.bad_pixels) == 0
     for r, c in ((40, 50), (70, 20)):
         on = [t for t in res.tracks if _near(t, c, r, 0.5)]
         assert len(on) == 1 and on[0].hits == 20 and not on[0].confirmed
@@ -125,5 +125,5 @@ def test_dead_pixels_are_flagged_and_leave_no_track():
         img = f.image.copy()
         img[60, 90] = 0  # dead
         res = trk.step(Frame(f.index, f.time, img))
-    assert (60, 90) in {tuple(p) for p in res.bad_pixels}
+    assert (60, 90) in {tuple(p) for p in res.front.bad_pixels}
     assert not any(abs(t.x - 90) < 4 and abs(t.y - 60) < 4 for t in res.tracks if t.confirmed)

@@ -92,8 +92,8 @@ def test_window_search_measures_the_same_features_as_global_detection() -> None:
     # the candidates lie in the searched crops; the residual is the full frame's all the same
     for x, y in b.centre:
         assert any(x0 <= x < x1 and y0 <= y < y1 for x0, y0, x1, y1 in r.searched), (x, y)
-    np.testing.assert_array_equal(r.suppressed, first.suppressed)
-    assert r.suppressed[30, 41] == 100
+    np.testing.assert_array_equal(r.front.suppressed, first.front.suppressed)
+    assert r.front.suppressed[30, 41] == 100
 
 
 def test_window_search_uses_the_whole_region_threshold_in_global_mode() -> None:
@@ -299,13 +299,13 @@ def test_fusion_accepts_and_runs_with_reacquire_and_compensate_motion(motion: st
     trk = FusionTracker(cfg)
     results = [trk.step(f) for f in frames]
     if motion == "off":
-        assert all(r.camera is None for r in results)
+        assert all(r.front.camera is None for r in results)
     else:
-        cams = [r.camera for r in results[1:]]
+        cams = [r.front.camera for r in results[1:]]
         assert all(c is not None and c.reliable for c in cams)
         np.testing.assert_allclose([c.shift for c in cams], np.tile([-2.0, 0.0], (len(cams), 1)), atol=0.2)
-        assert results[-1].camera.moving
-        assert results[-1].camera.offset[0] == pytest.approx(-2.0 * (len(frames) - 1), abs=1.0)
+        assert results[-1].front.camera.moving
+        assert results[-1].front.camera.offset[0] == pytest.approx(-2.0 * (len(frames) - 1), abs=1.0)
     # the target is detected near its position on every frame
     for r, (x, y) in zip(results, truth):
         assert len(r.detections) and np.min(np.hypot(*(r.detections.xy - (x, y)).T)) < 1.5

@@ -111,8 +111,8 @@ def test_fisheye_without_horizon() -> None:
         frames.append(to_u16(img + 10.0 * rng.standard_normal(img.shape)))
     tracker = GEWCTracker()
     results = run(tracker, frames)
-    assert results[-1].circle is not None
-    hz = results[-1].horizon
+    assert results[-1].front.circle is not None
+    hz = results[-1].front.horizon
     assert hz is None or hz.confidence < 0.5
     assert settled_hits(results, truth) >= 0.9
     assert false_confirmed(results, truth) == 0

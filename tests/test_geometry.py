@@ -4,6 +4,7 @@ synthetic frames with exact truth (and, when present, on the independent samples
 from __future__ import annotations
 
 import json
+from dataclasses import replace
 from pathlib import Path
 
 import cv2
@@ -236,20 +237,19 @@ def test_independent_fisheye_samples(name, floor_cover, max_median):
 
 
 @pytest.mark.parametrize("cross", [True, False])
-def test_a_confirmed_track_is_followed_below_the_horizon(cross, monkeypatch):
+def test_a_confirmed_track_is_followed_below_the_horizon(cross):
     """A target descending from the sky across the skyline into the ground: its confirmed
     track's gate is searched below the horizon too, so the track follows it there; without
     that (the search region only) the track is lost at the line. No track starts on the
     textured ground either way."""
     from wfviz.io.frames import Frame
     from wfviz.synth.psf import add_gaussian_spot
-    from wfviz.trackers.gewc import GEWCTracker
-    from wfviz.stages import front_end
+    from wfviz.trackers.gewc import GEWCConfig, GEWCTracker
 
-    monkeypatch.setattr(front_end, "GATES_CROSS_HORIZON", cross)
     rng = np.random.default_rng(5)
     background, boundary = skyline_scene(rng)
-    trk = GEWCTracker()
+    config = GEWCConfig()
+    trk = GEWCTracker(replace(config, detection=replace(config.detection, gates_cross_horizon=cross)))
     below = 0
     for k in range(40):
         x, y = 40.0 + 1.5 * k, 110.0 + 2.0 * k

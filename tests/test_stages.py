@@ -213,9 +213,9 @@ def test_pipeline_circle_and_horizon_on_the_demo_scene():
     c = trk.circle
     assert abs(c.cx - cx) < 1 and abs(c.cy - cy) < 1 and abs(c.radius - r) < 1
     truth = horizon_row(np.arange(clip.shape[1]))
-    ok = np.isfinite(truth) & np.isfinite(result.horizon.rows)
+    ok = np.isfinite(truth) & np.isfinite(result.front.horizon.rows)
     assert ok.sum() > 0.9 * np.isfinite(truth).sum()
-    assert np.median(np.abs(result.horizon.rows[ok] - truth[ok])) < 2.0
+    assert np.median(np.abs(result.front.horizon.rows[ok] - truth[ok])) < 2.0
 
 
 def test_search_zones_exclude_ground_modes():

@@ -92,17 +92,28 @@ class DetectionConfig:
     min_area: int = field(default=1, metadata=value_range(1, None))
     max_area: int = field(default=400, metadata=value_range(1, None))
     max_detections: int = field(default=200, metadata=value_range(1, None))
+    # confirmed tracks' gates are searched beyond the search region too, below the horizon
+    # (false: inside the search region only, the rule before; an ablation, docs/accuracy.md)
+    gates_cross_horizon: bool = True
 
 
 @dataclass(frozen=True)
 class NoiseConfig:
     """Local noise estimate of the residual (wfviz.stages.noise): tile size (px), the weight of the
     previous estimate's tile statistics, and how often (frames) the statistics and tail
-    calibrations are re-estimated (every frame after a camera shift of a quarter tile)."""
+    calibrations are re-estimated (every frame after a camera shift of a quarter tile).
+
+    ``residual_floor_overall`` (off) and ``change_floor_overall`` (on): the tail calibration of
+    the residual's significance, and of the change's, holds everywhere at least the tail ratio
+    that three quarters of the tiles reach (``overall`` of
+    :meth:`wfviz.stages.noise.TailCalibration.update`); switches for ablations.
+    """
 
     tile: int = field(default=32, metadata=value_range(8, 256))
     smoothing: float = field(default=0.5, metadata=value_range(0.0, 0.99))
     every: int = field(default=4, metadata=value_range(1, None))
+    residual_floor_overall: bool = False
+    change_floor_overall: bool = True
 
 
 @dataclass(frozen=True)
@@ -155,6 +166,9 @@ class TrackingConfig:
     gate_false_alarm: float = field(default=0.0, metadata=value_range(0.0, 0.5))
     min_displacement: float = field(default=0.0, metadata=value_range(0.0, None))
     max_misses: int = field(default=3, metadata=value_range(1, None))
+    # confirm = "sprt": a confirmed track whose hits have stopped being new at their place in the
+    # scene is deleted (false: the rule before it, for ablations; docs/accuracy.md)
+    delete_when_static: bool = True
     safety_distance: float = field(default=20.0, metadata=value_range(0.0, None))
     max_meeting_frames: int = field(default=40, metadata=value_range(1, None))
     meeting_velocity: str = field(default="kalman", metadata={"choices": ("kalman", "eq15")})

@@ -14,7 +14,8 @@ import numpy as np
 
 from wfviz.config import config_to_toml, load_config
 from wfviz.io.frames import Frame
-from wfviz.stages.front_end import FrontEnd, PreparedFrame
+from wfviz.stages.front_end import FrontEnd, PreparedFrame, Preparer
+from wfviz.stages.imaging_circle import ImagingCircle
 from wfviz.trackers import TRACKERS, config_class
 
 LABEL = re.compile(r"[A-Za-z0-9][A-Za-z0-9_.\-]*")
@@ -99,13 +100,13 @@ def check_labels(runs: list[RunSpec]) -> None:
 
 
 class SharedPrepare:
-    """One :meth:`FrontEnd.prepare` per frame for every tracker of a group: the first tracker
-    to ask for a frame computes it (its ``lap`` times the stages), the others get the same
-    :class:`PreparedFrame`. ``cost_ms`` is what the frame's preparation cost and ``payer``
-    the front end that paid it."""
+    """One preparation per frame (:class:`~wfviz.stages.front_end.Preparer`) for every tracker
+    of a group: the first tracker to ask for a frame computes it (its ``lap`` times the
+    stages), the others get the same :class:`PreparedFrame`. ``cost_ms`` is what the frame's
+    preparation cost and ``payer`` the tracker's source that paid it."""
 
     def __init__(self, config: Any) -> None:
-        self.front = FrontEnd(config)
+        self.stages = Preparer(config)
         self._raw: np.ndarray | None = None
         self._prepared: PreparedFrame | None = None
         self.cost_ms = 0.0
@@ -115,26 +116,27 @@ class SharedPrepare:
             update_horizon: bool) -> PreparedFrame:
         if raw is not self._raw or self._prepared is None:
             t0 = time.perf_counter()
-            self._prepared = self.front.prepare(raw, lap, whole, update_horizon)
+            self._prepared = self.stages.prepare(raw, lap, whole, update_horizon)
             self.cost_ms = (time.perf_counter() - t0) * 1e3
             self._raw, self.payer = raw, asker
         return self._prepared
 
 
-class SharedFrontEnd(FrontEnd):
-    """A tracker's front end whose :meth:`prepare` comes from a :class:`SharedPrepare`;
-    :meth:`finish` (detection, with this tracker's tracks) runs as usual."""
+class SharedSource:
+    """One tracker's :class:`~wfviz.stages.front_end.PreparedSource` in a group: its prepared
+    frames come from the group's :class:`SharedPrepare`."""
 
-    def __init__(self, config: Any, shared: SharedPrepare) -> None:
-        super().__init__(config)
+    def __init__(self, shared: SharedPrepare) -> None:
         self.shared = shared
 
     @property
-    def circle(self) -> Any:
-        return self.shared.front.circle
+    def circle(self) -> ImagingCircle | None:
+        """The group's imaging circle."""
+        return self.shared.stages.circle
 
     def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
                 update_horizon: bool = True) -> PreparedFrame:
+        """This frame prepared once for the group."""
         return self.shared.get(self, raw, lap, whole, update_horizon)
 
     def shared_ms(self) -> float:
@@ -161,8 +163,8 @@ class RunGroup:
             t0 = time.perf_counter()
             results.append(trk.step(frame))
             own = (time.perf_counter() - t0) * 1e3
-            front = getattr(trk, "front", None)
-            ms.append(own + (front.shared_ms() if isinstance(front, SharedFrontEnd) else 0.0))
+            source = getattr(getattr(trk, "front", None), "source", None)
+            ms.append(own + (source.shared_ms() if isinstance(source, SharedSource) else 0.0))
         return tuple(results), tuple(ms)
 
 
@@ -179,7 +181,7 @@ def make_trackers(runs: list[RunSpec]) -> tuple[list[Any], list[int]]:
         if cacheable(r.tracker, r.config):
             key = (r.tracker, FrontEnd.prepare_key(r.config))
             g, shared = groups.setdefault(key, (i, SharedPrepare(r.config)))
-            trackers.append(cls(r.config, front_end=SharedFrontEnd(r.config, shared)))
+            trackers.append(cls(r.config, source=SharedSource(shared)))
         else:
             g = i  # a group of its own
             trackers.append(cls(r.config))

@@ -33,7 +33,7 @@ class FusionRecorder(Recorder):
         rec = self.rec
         self.log_front_end(result, images)
         if images:
-            self.image("suppressed/image", result.suppressed)
+            self.image("suppressed/image", result.front.suppressed)
         f, n = result.features, len(result.features)
         phi = np.full(n, np.nan)
         cost = np.full(n, np.nan)

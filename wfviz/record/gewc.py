@@ -28,7 +28,7 @@ class GEWCRecorder(Recorder):
         rec = self.rec
         self.log_front_end(result, images)
         if images:
-            self.image("suppressed/image", result.suppressed)
+            self.image("suppressed/image", result.front.suppressed)
         if result.clutter is not None:  # static clutter stage (clutter.enabled)
             static = result.clutter == 1
             rec.log("camera/clutter", rr.Points2D(

@@ -19,6 +19,7 @@ from wfviz.io.frames import Frame
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
 from wfviz.record.live import LiveMirror, live_sink
 from wfviz.record_options import RecorderOptions
+from wfviz.stages.front_end import FrontEndResult
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
@@ -102,28 +103,28 @@ def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.Compone
     return [rr.ComponentColumn(desc, ArrowBatch(tensor)), rr.ComponentColumn(color_desc, ArrowBatch(rgba))]
 
 
-def log_geometry(rec: rr.RecordingStream, result: FrontEndTrackResult) -> None:
+def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
     """Non-imaging mask and imaging circle (static, when they change), flagged bad pixels and
-    the horizon (when re-estimated)."""
-    if result.mask_changed:
+    the horizon (when re-estimated), from the front end's result ``front``."""
+    if front.mask_changed:
         rec.log("camera/mask", rr.AnnotationContext([
             rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
             rr.ClassDescription(info=rr.AnnotationInfo(id=1, label="non-imaging", color=MASK_COLOR))]),
             static=True)
-        rec.log("camera/mask", rr.SegmentationImage(result.mask.astype(np.uint8)), static=True)
-        c = result.circle
+        rec.log("camera/mask", rr.SegmentationImage(front.mask.astype(np.uint8)), static=True)
+        c = front.circle
         a = np.linspace(0, 2 * np.pi, 181)
         rec.log("camera/imaging_circle", rr.LineStrips2D(
             [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
             labels=[f"R={c.radius:.1f} confidence {c.confidence:.2f}"] if c else None, colors=MASK_COLOR[:3],
             radii=0.5), static=True)
         rec.log("geometry/circle_confidence", rr.Scalars(float(c.confidence) if c else 0.0))
-    if result.bad_pixels_changed:
-        bp = result.bad_pixels
+    if front.bad_pixels_changed:
+        bp = front.bad_pixels
         rec.log("camera/bad_pixels", rr.Points2D(bp[:, ::-1].astype(np.float32) if len(bp) else np.zeros((0, 2)),
                                                  colors=(255, 60, 60), radii=2.0))
-    if result.horizon_updated:
-        h = result.horizon
+    if front.horizon_updated:
+        h = front.horizon
         line = h.polyline() if h is not None else None
         used = horizon_confident(h)
         label = None if h is None else [f"confidence {h.confidence:.2f} ({'used' if used else 'ignored'})"]
@@ -387,8 +388,8 @@ class Recorder:
         common: the scene geometry (:func:`log_geometry`), the noise map (``suppressed/noise``,
         with the images), the camera motion (``registration/*``) and the sequential test's
         levels (``tracks/*``)."""
-        log_geometry(self.rec, result)
-        noise = result.noise
+        log_geometry(self.rec, result.front)
+        noise = result.front.noise
         if noise is not None:
             # on exact frames (on image frames with previews only), when re-estimated since it was
             # last logged (the viewer shows the latest); half precision: a smooth map. Every
@@ -398,7 +399,7 @@ class Recorder:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), value_map=True)
                 self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
-        camera = result.camera
+        camera = result.front.camera
         if camera is not None:
             self.scalar("registration/dx", camera.shift[0])
             self.scalar("registration/dy", camera.shift[1])

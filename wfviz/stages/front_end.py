@@ -1,7 +1,12 @@
 """The stages every detection-based tracker shares (GEWC and fusion): defects, imaging circle,
 sky–ground line, camera motion, background suppression, local noise, change in the scene and
-noise-aware detection. Each frame goes through :meth:`FrontEnd.step`; the tracker then
-associates, measures and manages tracks.
+noise-aware detection.
+
+A frame goes through them in two calls with the tracks' prediction between them
+(docs/pipeline.md, "One frame, from reader to recorder"): :meth:`FrontEnd.prepare` runs the
+stages before detection (a :class:`PreparedFrame`, which holds the camera's motion the tracks
+are moved by), the tracker predicts its tracks, and :meth:`FrontEnd.finish` detects with the
+predictions' gates and thresholds (a :class:`FrontEndResult`). Nothing is called back.
 
 Order and stages (docs/pipeline.md):
 
@@ -15,12 +20,16 @@ Order and stages (docs/pipeline.md):
 7. ``change``: what is new at each place in the scene, in its own noise σ
    (:class:`wfviz.stages.background.TemporalBackground`).
 8. ``detect``: components above ``k_sigma`` in either significance (:func:`wfviz.stages.detection.detect`).
+
+Stages 1–7 are a :class:`Preparer`'s. A front end prepares its frames with its own, or takes
+them from another :class:`PreparedSource` (``wfviz tune`` replays frames prepared once,
+``wfviz compare`` shares one preparation among trackers).
 """
 
 from __future__ import annotations
 
-from collections.abc import Callable
-from dataclasses import dataclass, replace
+from collections.abc import Callable, Sequence
+from dataclasses import dataclass, fields, replace
 from typing import Protocol
 
 import cv2
@@ -36,6 +45,9 @@ from wfviz.stages.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.stages.noise import NoiseEstimate, NoiseModel, TailCalibration
 from wfviz.stages.registration import CameraMotion, CameraState
 
+#: a box of the frame: (rows, columns)
+Box = tuple[slice, slice]
+
 
 class FrontEndConfig(Protocol):
     """The sections of a tracker's configuration the front end reads (GEWC's and fusion's both
@@ -50,14 +62,7 @@ class FrontEndConfig(Protocol):
     tracking: TrackingConfig
 
 
-SPATIAL_OVERALL = False  # the residual's tail calibration holds a floor over the whole frame
-#: confirmed tracks' gates (``gates`` of :meth:`FrontEnd.step`) are searched below the horizon
-#: too (False: the search region only, for ablations)
-GATES_CROSS_HORIZON = True
-CHANGE_OVERALL = True   # the change's does
-
-
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class PreparedFrame:
     """A frame through the stages before detection (:meth:`FrontEnd.prepare`; the fields are
     described at :class:`FrontEndResult`; ``region`` here without any tracker's windows or
@@ -82,20 +87,46 @@ class PreparedFrame:
     bad_pixels_changed: bool
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class FrontEndResult(PreparedFrame):
     """One frame through the shared stages: a :class:`PreparedFrame` (``region`` here with the
     tracker's windows and gates) and this frame's ``detections``, with significance and change.
 
-    ``image``: the frame with defects replaced (``raw``: as read); ``valid``: inside the imaging
-    area; ``region``: where detections are searched; ``zones``: the parts of it with their own
-    noise statistics (None: one); ``offset``: the camera's (scene point s is at s + offset);
-    ``suppressed``: the background-suppressed residual; ``noise``: its local level and σ (None
-    outside "cfar" detection); ``change``: the change significance of every pixel (None on the
-    first frame).
+    ``image``: the frame with defects replaced (``raw``: as read); ``mask``: outside the imaging
+    area (``valid``: inside); ``circle``: the imaging circle; ``horizon``: the sky–ground line
+    (``horizon_updated``: re-estimated on this frame); ``region``: where detections are
+    searched; ``zones``: the parts of it with their own noise statistics (None: one);
+    ``camera``: the camera's motion (None: not compensated); ``offset``: the camera's (scene
+    point s is at s + offset); ``suppressed``: the background-suppressed residual; ``noise``:
+    its local level and σ (None outside "cfar" detection); ``change``: the change significance
+    of every pixel (None on the first frame); ``bad_pixels``: the flagged defects (row, col).
     """
 
     detections: Detections
+
+    @classmethod
+    def of(cls, prepared: PreparedFrame, *, region: np.ndarray, detections: Detections,
+           bad_pixels: np.ndarray, bad_pixels_changed: bool) -> FrontEndResult:
+        """``prepared`` with its detections (and the region and flagged defects they were found
+        with)."""
+        kept = {f.name: getattr(prepared, f.name) for f in fields(PreparedFrame)}
+        return cls(**{**kept, "region": region, "bad_pixels": bad_pixels,
+                      "bad_pixels_changed": bad_pixels_changed}, detections=detections)
+
+
+class PreparedSource(Protocol):
+    """Where a front end's prepared frames come from: its own :class:`Preparer`, or frames
+    prepared elsewhere (replayed, shared)."""
+
+    @property
+    def circle(self) -> ImagingCircle | None:
+        """The clip's imaging circle as of the last frame handed out."""
+        ...
+
+    def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
+                update_horizon: bool = True) -> PreparedFrame:
+        """The next frame through the stages before detection (:meth:`Preparer.prepare`)."""
+        ...
 
 
 def _unknown_at(change: np.ndarray, pixels: np.ndarray) -> np.ndarray:
@@ -111,10 +142,9 @@ def _unknown_at(change: np.ndarray, pixels: np.ndarray) -> np.ndarray:
     return out
 
 
-class FrontEnd:
-    """Streams frames through the shared stages (module docstring). ``config`` needs the
-    sections ``defects``, ``circle``, ``horizon``, ``suppression``, ``noise``, ``detection`` and
-    ``tracking`` (for ``compensate_motion`` and the shape test): :class:`FrontEndConfig`."""
+class Preparer:
+    """The stages before detection (1–7 of the module docstring) with their state: streams
+    frames through :meth:`prepare`. ``config``: a :class:`FrontEndConfig`."""
 
     def __init__(self, config: FrontEndConfig) -> None:
         c = self.config = config
@@ -126,7 +156,6 @@ class FrontEnd:
         self.noise = NoiseModel(c.noise.tile, c.noise.smoothing) if cfar else None
         self.temporal = TemporalBackground() if cfar else None
         self.change_noise = NoiseModel(c.noise.tile, c.noise.smoothing) if cfar else None
-        self._significance = not cfar and (c.detection.significance or c.tracking.confirm_significance > 0)
         self._valid: np.ndarray | None = None
         self._region: np.ndarray | None = None
         self._zones: list[np.ndarray] | None = None
@@ -144,44 +173,22 @@ class FrontEnd:
         """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
         return self.imaging.circle
 
-    def step(self, raw: np.ndarray, lap: Callable[[str], None], windows: np.ndarray | None = None,
-             update_horizon: bool = True,
-             k_map: Callable[[CameraState | None], np.ndarray | None] | None = None,
-             gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
-        """Every stage on one frame; ``lap(stage)`` is called as each stage ends (timing).
-        ``windows`` (a mask): detect only there, with the noise statistics of the last frame
-        searched whole (a tracker's search windows; with a global or box threshold, this
-        frame's threshold over the whole search region); the temporal background still learns every
-        frame. ``update_horizon``: the horizon may be re-estimated on this frame (when due).
-        ``k_map(camera)``: called once the camera motion is known, the detection threshold of
-        every pixel in σ (None: ``detection.k_sigma``; see :func:`wfviz.stages.detection.detect`).
-        ``gates(camera)``: likewise, boxes (row and column slices) searched besides the search
-        region (confirmed tracks' gates, which may reach below the horizon).
+    @property
+    def region(self) -> np.ndarray | None:
+        """The last frame's search region (None before the first frame)."""
+        return self._region
 
-        The same as :meth:`finish` of :meth:`prepare`: what comes before the detection does not
-        depend on the tracks when the frame is searched whole in "cfar" mode
-        (:meth:`independent_of_tracks`), so it can be computed once and replayed."""
-        return self.finish(self.prepare(raw, lap, windows is None, update_horizon), lap, windows, k_map, gates)
-
-    @staticmethod
-    def prepare_key(config: FrontEndConfig) -> tuple:
-        """Every configuration value :meth:`prepare` reads: two configurations with the same
-        key prepare every frame the same (``wfviz tune``'s front-end cache is keyed by it)."""
-        c = config
-        return (c.defects, c.circle, c.horizon, c.suppression, c.noise, c.detection.mode,
-                c.tracking.compensate_motion)
-
-    @staticmethod
-    def independent_of_tracks(config: FrontEndConfig) -> bool:
-        """Whether :meth:`prepare` of frames searched whole gives the same whatever the tracks
-        with ``config`` (in "cfar" mode; with a global or box threshold the defect stage takes
-        the detection's threshold, which the tracks' gates change)."""
-        return config.detection.mode == "cfar"
+    @property
+    def zones(self) -> list[np.ndarray] | None:
+        """The parts of :attr:`region` with their own noise statistics (None: one)."""
+        return self._zones
 
     def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
                 update_horizon: bool = True) -> PreparedFrame:
-        """The stages before detection (:meth:`step`); ``whole``: the frame is searched whole
-        (no windows: the noise statistics may be re-estimated)."""
+        """Stages 1–7 on the next frame; ``lap(stage)`` is called as each stage ends (timing).
+        ``whole``: the frame is searched whole (no windows: the noise statistics may be
+        re-estimated). ``update_horizon``: the horizon may be re-estimated on this frame (when
+        due)."""
         c = self.config
         img = self.bad.clean(raw)
         lap("defects")
@@ -211,7 +218,7 @@ class FrontEnd:
         if self.noise is not None:
             if (whole and due) or self._noise is None:
                 est = self.noise.update(suppressed, self._region, self._zones, image=img, reset=moved)
-                g = self.tail.update(est.significance(suppressed), self._region, overall=SPATIAL_OVERALL)
+                g = self.tail.update(est.significance(suppressed), self._region, overall=c.noise.residual_floor_overall)
                 self._noise = replace(est, sigma=est.sigma * g)
             noise = self._noise
             lap("noise")
@@ -222,59 +229,28 @@ class FrontEnd:
             # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
             bad_changed = self.bad.update(raw, suppressed, typical_threshold(noise, c.defects.k_sigma))
             lap("defects")
-        return PreparedFrame(img, raw, mask, mask_changed, valid, self.circle, horizon, horizon_updated,
-                             self._region, self._zones, camera, self._offset.copy(), suppressed, noise,
-                             change, self.bad.flagged, bad_changed)
+        return PreparedFrame(image=img, raw=raw, mask=mask, mask_changed=mask_changed, valid=valid,
+                             circle=self.circle, horizon=horizon, horizon_updated=horizon_updated,
+                             region=self._region, zones=self._zones, camera=camera,
+                             offset=self._offset.copy(), suppressed=suppressed, noise=noise, change=change,
+                             bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed)
 
-    def finish(self, p: PreparedFrame, lap: Callable[[str], None], windows: np.ndarray | None = None,
-               k_map: Callable[[CameraState | None], np.ndarray | None] | None = None,
-               gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
-        """Detection on a frame from :meth:`prepare` (:meth:`step`)."""
-        c = self.config
-        noise, camera, valid = p.noise, p.camera, p.valid
-        region = p.region if windows is None else p.region & windows
-        kmap = k_map(camera) if k_map is not None and noise is not None else None
-        boxes = gates(camera) if gates is not None and GATES_CROSS_HORIZON else []
-        full = _with_boxes(p.region, boxes, valid)  # the search region and confirmed gates
-        region = _with_boxes(region, boxes, valid, windows)
-        if windows is not None and c.detection.mode != "cfar":
-            # a global or box threshold is a statistic of the whole search region, not of the
-            # windows (whose own statistics a bright target inflates): detect there, keep the
-            # candidates inside the windows
-            dets = detect(p.suppressed, full, c.detection, p.zones, noise, p.change, kmap)
-            dets = dets.subset(sample_at(windows, dets.xy))
-        else:
-            dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap)
-        dets = score_detections(dets, p.image, full, c.detection, self._significance,
-                                c.tracking.confirm_blobness > 0)
-        bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
-        if not self.independent_of_tracks(c):  # the defect stage takes the detection's threshold
-            bad_changed = self.bad.update(p.raw, p.suppressed, dets.threshold)
-            bad_pixels = self.bad.flagged
-        lap("detect")
-        return FrontEndResult(p.image, p.raw, p.mask, p.mask_changed, valid, p.circle, p.horizon,
-                              p.horizon_updated, region, p.zones, camera, p.offset, p.suppressed, noise,
-                              p.change, bad_pixels, bad_changed, dets)
+    def flag_defects(self, raw: np.ndarray, suppressed: np.ndarray, threshold: float) -> tuple[np.ndarray, bool]:
+        """The defect stage's evidence of this frame at the detection's ``threshold`` (global or
+        box detection): the flagged pixels, and whether they changed."""
+        changed = self.bad.update(raw, suppressed, threshold)
+        return self.bad.flagged, changed
 
-    def redetect(self, result: FrontEndResult, lap: Callable[[str], None],
-                 gates: Callable[[CameraState | None], list[tuple[slice, slice]]] | None = None) -> FrontEndResult:
-        """``result`` (a frame searched in windows only) detected again over the whole search
-        region (and ``gates``, as in :meth:`step`), with this frame's own noise statistics (the
-        other stages are not repeated)."""
-        c = self.config
-        noise = result.noise
-        if self.noise is not None:
-            est = self.noise.update(result.suppressed, self._region, self._zones, image=result.image)
-            g = self.tail.update(est.significance(result.suppressed), self._region, overall=SPATIAL_OVERALL)
-            noise = self._noise = replace(est, sigma=est.sigma * g)
-            lap("noise")
-        boxes = gates(result.camera) if gates is not None and GATES_CROSS_HORIZON else []
-        region = _with_boxes(self._region, boxes, result.valid)
-        dets = detect(result.suppressed, region, c.detection, self._zones, noise, result.change)
-        dets = score_detections(dets, result.image, region, c.detection, self._significance,
-                                c.tracking.confirm_blobness > 0)
-        lap("detect")
-        return replace(result, region=region, noise=noise, detections=dets)
+    def renoise(self, suppressed: np.ndarray, image: np.ndarray) -> NoiseEstimate | None:
+        """The noise statistics re-estimated over the whole search region of this frame's
+        ``suppressed`` residual (after a window search; None outside "cfar" detection)."""
+        if self.noise is None:
+            return None
+        est = self.noise.update(suppressed, self._region, self._zones, image=image)
+        g = self.tail.update(est.significance(suppressed), self._region,
+                             overall=self.config.noise.residual_floor_overall)
+        self._noise = replace(est, sigma=est.sigma * g)
+        return self._noise
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
@@ -299,13 +275,121 @@ class FrontEnd:
             known = self._region & np.isfinite(change)
             self._spread = self.change_noise.update(np.where(known, change, 0.0), known, None, image=img)
             z = cv2.divide(change, self._spread.sigma)
-            factor = self.change_tail.update(z, known, overall=CHANGE_OVERALL)
+            factor = self.change_tail.update(z, known, overall=c.noise.change_floor_overall)
             self._change_scale = cv2.divide(1.0, cv2.multiply(self._spread.sigma, factor))
             return cv2.divide(z, factor)
         return cv2.multiply(change, self._change_scale)
 
 
-def _with_boxes(region: np.ndarray, boxes: list[tuple[slice, slice]], valid: np.ndarray,
+class FrontEnd:
+    """The shared stages of one tracker (module docstring): :meth:`prepare`, then :meth:`finish`
+    (and :meth:`redetect`). ``config`` needs the sections ``defects``, ``circle``, ``horizon``,
+    ``suppression``, ``noise``, ``detection`` and ``tracking`` (for ``compensate_motion`` and
+    the shape test): :class:`FrontEndConfig`. ``source``: where the prepared frames come from
+    (default: this front end's own :class:`Preparer`); only a front end whose preparation does
+    not depend on the tracks (:meth:`independent_of_tracks`) takes another."""
+
+    def __init__(self, config: FrontEndConfig, source: PreparedSource | None = None) -> None:
+        c = self.config = config
+        if source is not None and not self.independent_of_tracks(c):
+            raise ValueError("a front end whose detection threshold feeds the defect stage (detection.mode "
+                             "other than \"cfar\") prepares its own frames")
+        #: the own stages before detection (None: the frames come from ``source``)
+        self.preparer: Preparer | None = None
+        if source is None:
+            source = self.preparer = Preparer(c)
+        self.source: PreparedSource = source
+        self._significance = c.detection.mode != "cfar" and (
+            c.detection.significance or c.tracking.confirm_significance > 0)
+
+    @property
+    def circle(self) -> ImagingCircle | None:
+        """The clip's imaging circle (None: the image fills the frame, or not seen yet)."""
+        return self.source.circle
+
+    @staticmethod
+    def prepare_key(config: FrontEndConfig) -> tuple:
+        """Every configuration value :meth:`prepare` reads: two configurations with the same
+        key prepare every frame the same (``wfviz tune``'s front-end cache is keyed by it)."""
+        c = config
+        return (c.defects, c.circle, c.horizon, c.suppression, c.noise, c.detection.mode,
+                c.tracking.compensate_motion)
+
+    @staticmethod
+    def independent_of_tracks(config: FrontEndConfig) -> bool:
+        """Whether :meth:`prepare` of frames searched whole gives the same whatever the tracks
+        with ``config`` (in "cfar" mode; with a global or box threshold the defect stage takes
+        the detection's threshold, which the tracks' gates change)."""
+        return config.detection.mode == "cfar"
+
+    def prepare(self, raw: np.ndarray, lap: Callable[[str], None], whole: bool = True,
+                update_horizon: bool = True) -> PreparedFrame:
+        """The stages before detection on the next frame, from :attr:`source`
+        (:meth:`Preparer.prepare`). In "cfar" mode nothing in it depends on the tracks when
+        the frame is searched whole, so it can be computed once and replayed."""
+        return self.source.prepare(raw, lap, whole, update_horizon)
+
+    def finish(self, p: PreparedFrame, lap: Callable[[str], None], windows: np.ndarray | None = None,
+               k_map: np.ndarray | None = None, gates: Sequence[Box] = ()) -> FrontEndResult:
+        """Detection on a frame from :meth:`prepare`; ``lap("detect")`` as it ends.
+        ``windows`` (a mask): detect only there, with the noise statistics of the last frame
+        searched whole (a tracker's search windows; with a global or box threshold, this
+        frame's threshold over the whole search region). ``k_map``: the detection threshold of
+        every pixel in σ (None: ``detection.k_sigma``; used with a noise estimate only; see
+        :func:`wfviz.stages.detection.detect`). ``gates``: boxes searched besides the search
+        region (confirmed tracks' gates, which may reach below the horizon; ignored when
+        ``detection.gates_cross_horizon`` is off)."""
+        c = self.config
+        noise, valid = p.noise, p.valid
+        region = p.region if windows is None else p.region & windows
+        kmap = k_map if noise is not None else None
+        boxes = gates if c.detection.gates_cross_horizon else ()
+        full = _with_boxes(p.region, boxes, valid)  # the search region and confirmed gates
+        region = _with_boxes(region, boxes, valid, windows)
+        if windows is not None and c.detection.mode != "cfar":
+            # a global or box threshold is a statistic of the whole search region, not of the
+            # windows (whose own statistics a bright target inflates): detect there, keep the
+            # candidates inside the windows
+            dets = detect(p.suppressed, full, c.detection, p.zones, noise, p.change, kmap)
+            dets = dets.subset(sample_at(windows, dets.xy))
+        else:
+            dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap)
+        dets = score_detections(dets, p.image, full, c.detection, self._significance,
+                                c.tracking.confirm_blobness > 0)
+        bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
+        if not self.independent_of_tracks(c):  # the defect stage takes the detection's threshold
+            bad_pixels, bad_changed = self._own_stages("finish").flag_defects(p.raw, p.suppressed, dets.threshold)
+        lap("detect")
+        return FrontEndResult.of(p, region=region, detections=dets, bad_pixels=bad_pixels,
+                                 bad_pixels_changed=bad_changed)
+
+    def redetect(self, result: FrontEndResult, lap: Callable[[str], None],
+                 gates: Sequence[Box] = ()) -> FrontEndResult:
+        """``result`` (a frame searched in windows only) detected again over the whole search
+        region (and ``gates``, as in :meth:`finish`), with this frame's own noise statistics
+        (the other stages are not repeated)."""
+        c = self.config
+        stages = self._own_stages("redetect")
+        noise = result.noise
+        if stages.noise is not None:
+            noise = stages.renoise(result.suppressed, result.image)
+            lap("noise")
+        boxes = gates if c.detection.gates_cross_horizon else ()
+        region = _with_boxes(stages.region, boxes, result.valid)
+        dets = detect(result.suppressed, region, c.detection, stages.zones, noise, result.change)
+        dets = score_detections(dets, result.image, region, c.detection, self._significance,
+                                c.tracking.confirm_blobness > 0)
+        lap("detect")
+        return replace(result, region=region, noise=noise, detections=dets)
+
+    def _own_stages(self, what: str) -> Preparer:
+        """This front end's own :class:`Preparer` (``what`` needs it)."""
+        if self.preparer is None:
+            raise ValueError(f"FrontEnd.{what}: a front end with prepared frames from elsewhere has no stages of its own")
+        return self.preparer
+
+
+def _with_boxes(region: np.ndarray, boxes: Sequence[Box], valid: np.ndarray,
                 windows: np.ndarray | None = None) -> np.ndarray:
     """``region`` (not modified) plus the ``valid`` pixels of each box (inside ``windows``, when
     given)."""

@@ -428,13 +428,9 @@ def _refine(image: np.ndarray, valid: np.ndarray, coarse: np.ndarray, factor: in
     f = cv2.blur(crop, (sm, sm)) if sm > 1 else crop
     f = f.astype(np.float32, copy=False)
     hh = f.shape[0]
-    rr = np.clip(base[None, :] + off[:, None] - lo, n, hh - 1 - n)
+    rr = np.clip(base[None, :] + off[:, None] - lo, n, hh - 1 - n)  # rows n away from the crop's edges
     cc = np.broadcast_to(cols[None, :], rr.shape)
-    cl, cr = np.clip(cc - n, 0, w - 1), np.clip(cc + n, 0, w - 1)
-    g = np.abs(f[rr + n, cc] - f[rr - n, cc])
-    np.maximum(g, np.abs(f[rr - n, cr] - f[rr + n, cl]), out=g)
-    np.maximum(g, np.abs(f[rr, cr] - f[rr, cl]), out=g)
-    np.maximum(g, np.abs(f[rr + n, cr] - f[rr - n, cl]), out=g)
+    g = max_gradient(f, n)[rr, cc]
     g *= valid[rr + lo, cc]
     strong = g >= 0.5 * g.max(axis=0)[None, :]
     idx = np.arange(off.size)[:, None]

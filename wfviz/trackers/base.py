@@ -14,10 +14,7 @@ from wfviz.config import HorizonConfig, SuppressionConfig
 from wfviz.io.clip import MIN_SIDE
 from wfviz.io.frames import Frame
 from wfviz.stages.detection import Detections
-from wfviz.stages.horizon import Horizon
-from wfviz.stages.imaging_circle import ImagingCircle
-from wfviz.stages.noise import NoiseEstimate
-from wfviz.stages.registration import CameraState
+from wfviz.stages.front_end import FrontEndResult
 from wfviz.tracking import Prediction, TrackEvent, TrackState
 from wfviz.tracking.confirmation import Thresholds
 
@@ -39,22 +36,12 @@ class FrameResult:
 @dataclass(frozen=True, kw_only=True)
 class FrontEndTrackResult(FrameResult):
     """What the trackers built on the shared front end (:mod:`wfviz.stages.front_end`: GEWC and
-    fusion) report besides the common fields: the scene geometry (imaging circle and mask,
-    horizon, flagged bad pixels, each with whether it changed this frame), the residual, the
-    tracks' Kalman innovations, and when their stages run the local noise, the camera's motion
-    and the sequential test's levels."""
+    fusion) report besides the common fields: the front end's own result ``front`` (scene
+    geometry, residual, noise, camera motion, its detections), the tracks' Kalman innovations
+    and, with the sequential test, its levels."""
 
-    circle: ImagingCircle | None
-    mask: np.ndarray
-    mask_changed: bool
-    horizon: Horizon | None
-    horizon_updated: bool
-    bad_pixels: np.ndarray
-    bad_pixels_changed: bool
-    suppressed: np.ndarray
+    front: FrontEndResult
     innovations: dict[int, np.ndarray]
-    noise: NoiseEstimate | None = None  # detection.mode = "cfar"
-    camera: CameraState | None = None
     thresholds: Thresholds | None = None  # tracking.confirm = "sprt"
 
 

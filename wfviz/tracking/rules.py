@@ -15,11 +15,6 @@ from wfviz.tracking import confirmation
 if TYPE_CHECKING:
     from wfviz.tracking.manager import TrackManager
 
-#: SequentialRule: a confirmed track whose hits have stopped being new at their place is deleted
-#: (False: the rule before it, for ablations)
-DELETE_STATIC = True
-
-
 @dataclass(frozen=True)
 class Evidence:
     """One frame's evidence about every track (rows as the manager's), for a confirmation rule:
@@ -168,7 +163,7 @@ class SequentialRule:
         lost = conf & (mgr.score <= th.delete + tie)
         # a confirmed track that turned static: Page's CUSUM of the clutter evidence since
         # confirmation reaches the static-clutter level of the confirmation test
-        static = (conf & ~lost & (mgr.static_cusum >= -th.drop - tie) if DELETE_STATIC
+        static = (conf & ~lost & (mgr.static_cusum >= -th.drop - tie) if tc.delete_when_static
                   else np.zeros(n, dtype=bool))
         mgr.static_cusum[confirm] = 0.0
         why = [""] * n

@@ -10,10 +10,12 @@ Only trackers whose front end does not depend on the tracks take it: GEWC in "cf
 
 from __future__ import annotations
 
+from collections.abc import Callable
 from typing import Any
 
 from wfviz.io.frames import Frame
-from wfviz.stages.front_end import FrontEnd, PreparedFrame
+from wfviz.stages.front_end import FrontEnd, PreparedFrame, Preparer
+from wfviz.stages.imaging_circle import ImagingCircle
 from wfviz.synth.clip import MemoryClip
 
 CACHE_MB = 3072  # per worker process; clips that no longer fit are prepared afresh each trial
@@ -26,19 +28,22 @@ def _noop(_stage: str) -> None:
     pass
 
 
-class ReplayFrontEnd(FrontEnd):
-    """A :class:`FrontEnd` whose :meth:`prepare` hands out prepared frames in order (the raw
-    frame it is given is not looked at); :meth:`finish` (detection) runs as usual."""
+class Replay:
+    """A :class:`~wfviz.stages.front_end.PreparedSource` that hands out prepared frames in
+    order (the raw frame it is given is not looked at): a tracker's front end given it runs
+    only the detection (:meth:`~wfviz.stages.front_end.FrontEnd.finish`)."""
 
-    def __init__(self, config: Any, frames: list[PreparedFrame]) -> None:
-        super().__init__(config)
+    def __init__(self, frames: list[PreparedFrame]) -> None:
         self._frames, self._next = frames, 0
 
     @property
-    def circle(self) -> Any:
+    def circle(self) -> ImagingCircle | None:
+        """The imaging circle of the last frame handed out."""
         return self._frames[self._next - 1].circle if self._next else None
 
-    def prepare(self, raw: Any, lap: Any, whole: bool = True, update_horizon: bool = True) -> PreparedFrame:
+    def prepare(self, raw: Any, lap: Callable[[str], None], whole: bool = True,
+                update_horizon: bool = True) -> PreparedFrame:
+        """The next prepared frame."""
         p = self._frames[self._next]
         self._next += 1
         return p
@@ -66,9 +71,9 @@ def _nbytes(frames: list[PreparedFrame]) -> int:
     return total
 
 
-def replay(spec: str, stop: int | None, config: Any) -> tuple[MemoryClip, ReplayFrontEnd]:
-    """The clip ``spec`` (frames before ``stop``) and a front end that replays it for
-    ``config``, prepared now or taken from the cache."""
+def replay(spec: str, stop: int | None, config: Any) -> tuple[MemoryClip, Replay]:
+    """The clip ``spec`` (frames before ``stop``) and a source of its frames prepared for
+    ``config`` (a tracker's ``source``), prepared now or taken from the cache."""
     from wfviz.io.clip import open_clip
 
     key = (spec, stop, FrontEnd.prepare_key(config))
@@ -76,11 +81,11 @@ def replay(spec: str, stop: int | None, config: Any) -> tuple[MemoryClip, Replay
     clip = open_clip(spec)
     if hit is None:
         STATS["misses"] += 1
-        front = FrontEnd(config)
+        stages = Preparer(config)
         frames, prepared = [], []
         for f in clip.frames(0, stop):
             frames.append(f)
-            prepared.append(front.prepare(f.image, _noop))
+            prepared.append(stages.prepare(f.image, _noop))
         hit = (frames, prepared, _nbytes(prepared))
         # a study visits its clips in the same order every trial: dropping the oldest to make
         # room would drop each clip just before it is needed again, so what is cached stays
@@ -89,4 +94,4 @@ def replay(spec: str, stop: int | None, config: Any) -> tuple[MemoryClip, Replay
     else:
         STATS["hits"] += 1
     frames, prepared, _ = hit
-    return MemoryClip(clip.name, frames, clip.fps), ReplayFrontEnd(config, prepared)
+    return MemoryClip(clip.name, frames, clip.fps), Replay(prepared)

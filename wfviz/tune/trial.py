@@ -73,8 +73,8 @@ def _run(task: TrialTask) -> TrialOutcome:
         for clip in task.clips:
             csv_path = work / f"trial-{task.number}-{clip.label}-{os.getpid()}.csv"
             if task.cache and cacheable(task.tracker, config):
-                source, front = replay(clip.spec, task.stop, config)
-                tracker = TRACKERS[task.tracker].tracker(config, front_end=front)
+                source, prepared = replay(clip.spec, task.stop, config)
+                tracker = TRACKERS[task.tracker].tracker(config, source=prepared)
             else:
                 source, tracker = open_clip(clip.spec), make_tracker(task.tracker, config)
             try:

@@ -3,20 +3,22 @@ detection, per-target features (centre of the bounding rectangle, area, grey sum
 matching cost, constant-velocity Kalman search windows, and global re-detection whenever a
 confirmed track's window holds no candidate.
 
-Per frame (:meth:`FusionTracker.step`):
+Per frame (:meth:`FusionTracker.step`; the order of docs/pipeline.md):
 
-1. ``defects``: flagged hot/dead pixels replaced (``defects.BadPixels``).
-2. ``mask`` / ``horizon``: imaging circle (first frame) and sky-ground line (global frames only).
-3. Kalman prediction of every track (``TrackManager.predict``): the gate is the search window.
-4. ``windows``: background suppression and thresholding *inside the windows only* (the
-   threshold is the one of the last global detection), connected components, features.
-5. ``suppress`` + ``detect``: global detection on the whole frame on the first frame, while no
-   track is confirmed, every ``fusion.detect_every`` frames, and whenever a confirmed track's
-   window holds no candidate (the window search is then replaced by the global candidates).
-6. ``associate``: optimal assignment minimising the fused cost (confirmed tracks first, no
+1. Kalman prediction of every track (``TrackManager.predict``), before the camera shift is
+   known: the gate is the search window, in the previous frame's image.
+2. ``defects``, ``mask``, ``horizon`` (global frames only), ``camera``, ``suppress``, ``noise``,
+   ``change``: the front end's stages before detection (``FrontEnd.prepare``); the tracks'
+   states (not the predictions) are then moved by the camera's shift.
+3. ``detect``: inside the windows only (with the noise statistics of the last global
+   detection), or global detection on the whole frame on the first frame, while no track is
+   confirmed, every ``fusion.detect_every`` frames, and whenever a confirmed track's window
+   holds no candidate (``FrontEnd.redetect``: the window search is then replaced by the global
+   candidates). Connected components, features.
+4. ``associate``: optimal assignment minimising the fused cost (confirmed tracks first, no
    candidate used twice); a confirmed track whose window is empty may *recover* the best
    candidate of the global detection within ``fusion.recover_radius``.
-7. ``kalman``: updates, hits and misses, births from unused global detections.
+5. ``kalman``: updates, hits and misses, births from unused global detections.
 
 Features and the fused cost (docs/pipeline.md, "The feature-fusion tracker"): the centre c is
 the centre of the component's bounding rectangle (axis-aligned by default), the area a its
@@ -68,12 +70,13 @@ class Match:
 
 @dataclass(frozen=True, kw_only=True)
 class FusionResult(FrontEndTrackResult):
-    """Every stage's output for one frame (the common fields come from FrontEndTrackResult).
+    """Every stage's output for one frame (the common fields and the front end's result
+    ``front`` come from FrontEndTrackResult).
 
     ``detections`` are the frame's candidates: all components of the global detection on
     global frames, the components found inside the search windows otherwise (their ``xy`` is
-    ``features.centre``). ``suppressed`` is the full residual on global frames and the residual
-    inside the searched windows (0 elsewhere) on the other frames.
+    ``features.centre``; ``front.detections`` has the components' own centroids).
+    ``front.suppressed`` is the whole frame's residual on every frame.
     """
 
     features: Features
@@ -206,7 +209,10 @@ class FusionTracker:
         return min_side(self.config.suppression, self.config.horizon)
 
     def step(self, frame: Frame) -> FusionResult:
-        """Run every stage on one frame."""
+        """Run every stage on one frame, in the order of docs/pipeline.md: predict (before the
+        camera shift: the predictions, windows and gates are in the previous frame's image),
+        prepare, the tracks moved with the camera, finish (detection in the windows or the
+        whole frame, with the confirmed gates), associate (with global re-detection), update."""
         fc = self.config.fusion
         timer = StageTimer(("defects", "mask", "horizon", "camera", "suppress", "noise", "change",
                             "detect", "associate", "kalman"))
@@ -218,9 +224,8 @@ class FusionTracker:
         half = np.array([[p.half_w, p.half_h] for p in preds], dtype=np.float64).reshape(-1, 2)
         confirmed = np.array([p.confirmed for p in preds], dtype=bool)
         active = np.array([not p.meeting for p in preds], dtype=bool)  # meeting tracks take nothing
+        gates = gate_boxes(preds, shape[:2])  # confirmed gates, below the horizon too
         lap("associate")
-        def gates(camera: object) -> list[tuple[slice, slice]]:  # confirmed gates, below the horizon too
-            return gate_boxes(preds, shape[:2])
 
         reason = ""
         if self._steps == 0:
@@ -234,11 +239,14 @@ class FusionTracker:
         searched: list = []
         pairs: dict[int, int] = {}
         lost: list[int] = []
-        fe = None
+        # a window frame is prepared for its windows: the noise statistics and the horizon stay
+        prepared = self.front.prepare(frame.image, lap, whole=bool(reason), update_horizon=bool(reason))
+        if prepared.camera is not None:  # the tracks' states only: the predictions stay as made
+            mgr.shift(*prepared.camera.shift)
         if not reason:
             search = [i for i in range(len(preds)) if active[i]]
             windows, searched = self._window_mask(preds, search, shape)
-            fe = self.front.step(frame.image, lap, windows=windows, update_horizon=False, gates=gates)
+            fe = self.front.finish(prepared, lap, windows=windows, gates=gates)
             dets, feats = self._features(fe.detections, fe.image)
             pairs, cost = self._associate(preds, pred_xy, half, confirmed, active, feats, shape)
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
@@ -246,6 +254,8 @@ class FusionTracker:
             if lost:
                 ids = ", ".join(str(preds[i].track_id) for i in lost)
                 reason = f"track{'s' if len(lost) > 1 else ''} {ids}: no candidate in the search window"
+        else:
+            fe = self.front.finish(prepared, lap, gates=gates)
         is_global = bool(reason)
         events_pre: list[TrackEvent] = []
         recovered: dict[int, int] = {}
@@ -255,9 +265,7 @@ class FusionTracker:
                 events_pre.append(TrackEvent(frame.index, EventKind.WINDOW_LOST, preds[i].track_id,
                                              f"track {preds[i].track_id}: no candidate in its search "
                                              f"window, global detection reruns"))
-            if fe is None:
-                fe = self.front.step(frame.image, lap, gates=gates)
-            else:  # the windows were searched: detect in the whole frame, this frame's statistics
+            if lost:  # the windows were searched: detect in the whole frame, this frame's statistics
                 fe = self.front.redetect(fe, lap, gates=gates)
             searched = []
             dets, feats = self._features(fe.detections, fe.image)
@@ -265,8 +273,6 @@ class FusionTracker:
             lost = [i for i in range(len(preds)) if confirmed[i] and active[i] and i not in pairs]
             recovered, recover_cost = self._recover(preds, pred_xy, lost, pairs, feats, confirmed, half, shape)
             lap("associate")
-        if fe.camera is not None:
-            mgr.shift(*fe.camera.shift)
         matches, meas = self._matches(preds, pairs, recovered, recover_cost, cost, feats, shape)
         taken = {**pairs, **recovered}
         assoc = mgr.gate(preds, feats.centre).with_pairs(taken)
@@ -293,16 +299,11 @@ class FusionTracker:
         timings = timer.done()
         return FusionResult(
             index=frame.index, time=frame.time, tracks=tuple(mgr.states()),
-            predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,
+            predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings, front=fe,
+            innovations=mgr.innovations(), thresholds=mgr.thresholds,
             features=feats, matches=tuple(matches), assigned=assigned, global_detection=is_global,
             global_reason=reason, searched=tuple(searched),
-            lost=tuple(preds[i] for i in lost if i not in recovered), recover_radius=fc.recover_radius,
-            suppressed=fe.suppressed, circle=fe.circle, mask=fe.mask, mask_changed=fe.mask_changed,
-            horizon=fe.horizon, horizon_updated=fe.horizon_updated,
-            innovations=mgr.innovations(), bad_pixels=fe.bad_pixels,
-            bad_pixels_changed=fe.bad_pixels_changed, noise=fe.noise, camera=fe.camera,
-            thresholds=mgr.thresholds,
-        )
+            lost=tuple(preds[i] for i in lost if i not in recovered), recover_radius=fc.recover_radius)
 
     # -- association ----------------------------------------------------------------------
     def _ref_arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:

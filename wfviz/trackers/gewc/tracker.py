@@ -10,13 +10,13 @@ from wfviz.io.frames import Frame
 from wfviz.stages.centroid import measure_many
 from wfviz.stages.clutter import StaticClutter
 from wfviz.stages.detection import Detections
-from wfviz.stages.front_end import FrontEnd
+from wfviz.stages.front_end import FrontEnd, PreparedSource
 from wfviz.stages.imaging_circle import ImagingCircle
 from wfviz.stages.noise import NoiseEstimate
 from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.gewc.config import GEWCConfig
-from wfviz.tracking import Measurements, TrackManager, gate_boxes
+from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 
@@ -33,10 +33,11 @@ class Measurement:
 
 @dataclass(frozen=True, kw_only=True)
 class GEWCResult(FrontEndTrackResult):
-    """Every stage's output for one frame (the common fields come from FrontEndTrackResult)."""
+    """Every stage's output for one frame (the common fields and the front end's result
+    ``front`` come from FrontEndTrackResult; the tracks were moved by ``front.camera.shift``
+    when the camera motion is compensated)."""
 
     measurements: tuple[Measurement, ...]
-    camera_shift: tuple[float, float] | None  # (dx, dy) the tracks were moved by (None: not compensated)
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
 
 
@@ -48,12 +49,13 @@ class GEWCTracker:
     #: comes before detection can be prepared once and replayed (``wfviz tune``'s cache)
     searches_whole_frames = True
 
-    def __init__(self, config: GEWCConfig | None = None, front_end: FrontEnd | None = None) -> None:
-        """``front_end``: the shared stages to use (default: a new :class:`FrontEnd` of
-        ``config``; ``wfviz tune`` passes one that replays frames it prepared once)."""
+    def __init__(self, config: GEWCConfig | None = None, source: PreparedSource | None = None) -> None:
+        """``source``: where the front end's prepared frames come from (default: its own
+        stages; ``wfviz tune`` replays frames it prepared once, ``wfviz compare`` shares one
+        preparation among trackers)."""
         self.config = config or GEWCConfig()
         c = self.config
-        self.front = front_end if front_end is not None else FrontEnd(c)
+        self.front = FrontEnd(c, source)
         self.clutter = StaticClutter(c.clutter) if c.clutter.enabled else None
         self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma,
                                     clutter_rule=c.clutter if self.clutter is not None else None)
@@ -69,36 +71,22 @@ class GEWCTracker:
         return min_side(self.config.suppression, self.config.horizon)
 
     def step(self, frame: Frame) -> GEWCResult:
-        """Run every stage on one frame."""
+        """Run every stage on one frame, in the order of docs/pipeline.md: prepare, predict (the
+        tracks moved with the camera, then advanced), finish (detection with the confirmed
+        gates and their thresholds), associate, measure, update."""
         c = self.config
         timer = StageTimer()
         lap = timer.lap
-        predicted: list = []
-        done = [False]  # the tracks were moved with the camera and predicted (once a frame)
-        gate_k: list = [None]
-
-        def predict(camera: CameraState | None) -> list:  # once the camera motion is known
-            if not done[0]:
-                done[0] = True
-                if camera is not None:
-                    self.manager.shift(*camera.shift)
-                predicted.extend(self.manager.predict(frame.index))
-            return predicted
-
-        def k_map(camera: CameraState | None) -> np.ndarray | None:
-            gate_k[0] = self._gate_thresholds(predict(camera))
-            return None if gate_k[0] is None else self._threshold_map(predicted, gate_k[0], frame.image.shape)
-
-        def gates(camera: CameraState | None) -> list[tuple[slice, slice]]:  # confirmed gates
-            return gate_boxes(predict(camera), frame.image.shape[:2])
-
-        fe = self.front.step(frame.image, lap, k_map=k_map if c.tracking.gate_false_alarm > 0 else None,
-                             gates=gates)
-        predict(fe.camera)  # neither callback ran (no noise estimate, or both off)
+        shape = frame.image.shape
+        prepared = self.front.prepare(frame.image, lap)
+        preds = self._predict(frame.index, prepared.camera)
+        gate_k = (self._gate_thresholds(preds) if c.tracking.gate_false_alarm > 0 and prepared.noise is not None
+                  else None)
+        k_map = None if gate_k is None else self._threshold_map(preds, gate_k, shape)
+        fe = self.front.finish(prepared, lap, k_map=k_map, gates=gate_boxes(preds, shape[:2]))
         dets, suppressed, valid = fe.detections, fe.suppressed, fe.valid
         labels = None if self.clutter is None else self.clutter.update(
             dets.xy, suppressed, fe.offset, dets.peak / np.maximum(dets.thresholds(), 1e-12))
-        preds = predicted
         assoc = self.manager.associate(preds, dets.xy)
         if c.tracking.reacquire > 0:
             assoc = self.manager.reacquire(preds, dets.xy, assoc, self._could_confirm(dets, labels),
@@ -112,19 +100,22 @@ class GEWCTracker:
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy)),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
-            gate_k=gate_k[0], frame_shape=fe.image.shape)
+            gate_k=gate_k, frame_shape=fe.image.shape)
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
             index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
-            predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings,
-            circle=fe.circle, mask=fe.mask, mask_changed=fe.mask_changed, horizon=fe.horizon,
-            horizon_updated=fe.horizon_updated, suppressed=suppressed,
-            measurements=tuple(meas.values()), innovations=self.manager.innovations(),
-            bad_pixels=fe.bad_pixels, bad_pixels_changed=fe.bad_pixels_changed,
-            camera_shift=None if fe.camera is None else fe.camera.shift,
-            clutter=labels, noise=fe.noise, camera=fe.camera, thresholds=self.manager.thresholds,
-        )
+            predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings, front=fe,
+            innovations=self.manager.innovations(), thresholds=self.manager.thresholds,
+            measurements=tuple(meas.values()), clutter=labels)
+
+    def _predict(self, index: int, camera: CameraState | None) -> list[Prediction]:
+        """The tracks moved by the camera's shift of this frame (``camera``; None: not
+        compensated), then advanced to frame ``index``: the predictions are in this frame's
+        image."""
+        if camera is not None:
+            self.manager.shift(*camera.shift)
+        return self.manager.predict(index)
 
     def _gate_thresholds(self, preds: list) -> np.ndarray | None:
         """Per prediction, the threshold (σ) its gate is searched at: lower for confirmed tracks

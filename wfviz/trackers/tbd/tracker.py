@@ -11,6 +11,7 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass, field
+from typing import NamedTuple
 
 import cv2
 import numpy as np
@@ -23,7 +24,7 @@ from wfviz.stages.imaging_circle import ImagingMask
 from wfviz.trackers.base import FrameResult, StageTimer, min_side
 from wfviz.trackers.tbd.background import PixelBackground
 from wfviz.trackers.tbd.config import TBDConfig
-from wfviz.trackers.tbd.filter import BankOutput, RegionFilter
+from wfviz.trackers.tbd.filter import BankOutput, Estimate, RegionFilter
 from wfviz.trackers.tbd.model import matched_filter, normalise, texture_normalise
 from wfviz.tracking import EventKind, Prediction, TrackEvent, TrackState
 
@@ -66,6 +67,22 @@ class TBDResult(FrameResult):
     noise_sigma: float
     amplitudes: dict[int, float]
     position_std: dict[int, float]
+
+
+class TargetEstimate(NamedTuple):
+    """One target of a bank's estimate in frame coordinates: position and velocity (px,
+    px/frame), peak SNR, position std (px), whether the bank's count includes it (else it is the
+    tentative target of PF_n+1) and the bank's region id."""
+
+    x: float
+    y: float
+    vx: float
+    vy: float
+    amplitude: float
+    std_x: float
+    std_y: float
+    confirmed: bool
+    region: int
 
 
 @dataclass
@@ -188,7 +205,7 @@ class TBDTracker:
             y, texture = texture_normalise(y, mc.noise_window)
         return y, nf.sigma, texture
 
-    def _hold_mask(self, shape: tuple[int, int], estimates: list[tuple]) -> np.ndarray | None:
+    def _hold_mask(self, shape: tuple[int, int], estimates: list[TargetEstimate]) -> np.ndarray | None:
         """Pixels within the PSF patch radius + 1 of this frame's estimated targets (their
         background is not updated next frame, so a slow target is not learnt as background)."""
         if not estimates:
@@ -197,7 +214,7 @@ class TBDTracker:
         rad = self.config.model.patch_radius + 1
         mask = np.zeros(shape, bool)
         for e in estimates:
-            c, r = int(round(e[0])), int(round(e[1]))
+            c, r = int(round(e.x)), int(round(e.y))
             mask[max(r - rad, 0):max(min(r + rad + 1, rows), 0), max(c - rad, 0):max(min(c + rad + 1, cols), 0)] = True
         return mask
 
@@ -290,7 +307,7 @@ class TBDTracker:
                               np.arange(1, n + 1), dets.labels, float(c.regions.candidate_k))
         timer.lap("candidates")
 
-        estimates: list[tuple] = []  # x, y, vx, vy, amplitude, std_x, std_y, confirmed, region
+        estimates: list[TargetEstimate] = []
         particles = []
         p_total = np.ones(1)
         count = 0
@@ -303,9 +320,7 @@ class TBDTracker:
             p_total = _convolve(p_total, p)
             n = out.count
             count += n
-            for e_n, confirmed in self._reported(b, out, n):
-                for j in e_n:
-                    estimates.append((*j, confirmed, b.region_id))
+            estimates += self._reported(b, out, n)
             if len(out.particles):
                 pts = out.particles.copy()
                 pts[:, [0, 1]] = pts[:, [1, 0]]
@@ -332,18 +347,18 @@ class TBDTracker:
             count_changed=changed, particles=np.concatenate(particles) if particles else np.zeros((0, 3)),
             regions=regions, normalised=y, noise_sigma=sigma, amplitudes=amps, position_std=stds)
 
-    def _reported(self, b: _Bank, out: BankOutput, n: int) -> list[tuple[list[tuple], bool]]:
-        """Frame-coordinate rows of PF_n (confirmed) and, when P(n + 1) >= tentative_p, the
-        target of PF_n+1 farthest from PF_n's (tentative), if it is localised (position std
-        within ``tracking.id_gate``)."""
-        rows = []
+    def _reported(self, b: _Bank, out: BankOutput, n: int) -> list[TargetEstimate]:
+        """The targets of PF_n (confirmed) and, when P(n + 1) >= tentative_p, the target of
+        PF_n+1 farthest from PF_n's (tentative), if it is localised (position std within
+        ``tracking.id_gate``)."""
 
-        def conv(e, j):
+        def conv(e: Estimate, j: int, confirmed: bool) -> TargetEstimate:
             s = e.state[j]
-            return (s[2] + b.x0, s[0] + b.y0, s[3], s[1], float(e.amplitude[j]), e.std[j, 1], e.std[j, 0])
+            return TargetEstimate(x=s[2] + b.x0, y=s[0] + b.y0, vx=s[3], vy=s[1], amplitude=float(e.amplitude[j]),
+                            std_x=e.std[j, 1], std_y=e.std[j, 0], confirmed=confirmed, region=b.region_id)
 
         est = out.estimates[n]
-        rows.append(([conv(est, j) for j in range(n)], True))
+        rows = [conv(est, j, True) for j in range(n)]
         p = out.p
         tp = self.config.tracking.tentative_p
         if n + 1 < len(p) and p[n + 1] >= tp and tp > 0:
@@ -353,11 +368,11 @@ class TBDTracker:
                 d = np.linalg.norm(nxt.state[:, None, [0, 2]] - est.state[None, :, [0, 2]], axis=-1)
                 j = int(np.argmax(d.min(axis=1)))
             if float(np.hypot(*nxt.std[j])) <= self.config.tracking.id_gate:
-                rows.append(([conv(nxt, j)], False))
+                rows.append(conv(nxt, j, False))
         return rows
 
     # -- track ids ----------------------------------------------------------------------------
-    def _associate(self, index: int, estimates: list[tuple], c: TBDConfig
+    def _associate(self, index: int, estimates: list[TargetEstimate], c: TBDConfig
                    ) -> tuple[list[TrackState], list[Prediction], list[TrackEvent], dict, dict]:
         """Stable ids: estimates are assigned (Hungarian, distance <= ``tracking.id_gate``) to
         the tracks' predicted positions (last estimate + velocity x frames since). Estimates
@@ -370,10 +385,10 @@ class TBDTracker:
         count and each hypothesis' estimate); there are no detections to gate, update or start
         tracks from. This only labels the filters' estimates over time."""
         tc = c.tracking
-        est = sorted(estimates, key=lambda e: (not e[7], e[8]))  # confirmed first, then region
-        kept: list[tuple] = []
+        est = sorted(estimates, key=lambda e: (not e.confirmed, e.region))  # confirmed first, then region
+        kept: list[TargetEstimate] = []
         for e in est:
-            if all(math.hypot(e[0] - k[0], e[1] - k[1]) >= tc.merge_distance for k in kept):
+            if all(math.hypot(e.x - k.x, e.y - k.y) >= tc.merge_distance for k in kept):
                 kept.append(e)
         live = [tr for tr in self._tracks.values() if index - tr.last_frame <= tc.id_memory + 1]
         events: list[TrackEvent] = []
@@ -383,7 +398,7 @@ class TBDTracker:
             for i, e in enumerate(kept):
                 for j, tr in enumerate(live):
                     dt = index - tr.last_frame
-                    d = math.hypot(e[0] - (tr.x + tr.vx * dt), e[1] - (tr.y + tr.vy * dt))
+                    d = math.hypot(e.x - (tr.x + tr.vx * dt), e.y - (tr.y + tr.vy * dt))
                     if d <= tc.id_gate:
                         cost[i, j] = d
             ri, ci = linear_sum_assignment(cost)
@@ -392,7 +407,7 @@ class TBDTracker:
                     pairs[i] = live[j]
         tracks, preds, amps, stds = [], [], {}, {}
         for i, e in enumerate(kept):
-            x, y_, vx, vy, amp, sx, sy, confirmed, _ = e
+            x, y_, vx, vy, amp, sx, sy, confirmed = e.x, e.y, e.vx, e.vy, e.amplitude, e.std_x, e.std_y, e.confirmed
             tr = pairs.get(i)
             if tr is None:
                 tr = _Track(self._next_id, x, y_, vx, vy, index)
