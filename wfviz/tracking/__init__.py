@@ -5,7 +5,8 @@ with their sequential tests (:mod:`.confirmation`), what a rule reads and return
 (:mod:`.decision`: Evidence, Decisions, Decision), and the track manager (:mod:`.manager`) that
 runs them per frame."""
 
-from wfviz.tracking.association import Association, Measurements, assign_confirmed_first, gate_boxes
+from wfviz.tracking.association import (Association, Gates, Measurements, assign_confirmed_first, assign_in_gates,
+                                       gate_boxes)
 from wfviz.tracking.decision import Check, Decision, Decisions, Evidence, Statistic, Verdict
 from wfviz.tracking.manager import TrackManager, extrapolate
 from wfviz.tracking.rules import CONFIRMATION_RULES, HitsRule, Rule, SequentialRule
@@ -13,6 +14,6 @@ from wfviz.tracking.table import Columns, TrackTable
 from wfviz.tracking.tracks import EventKind, Prediction, TrackEvent, TrackState
 
 __all__ = ["CONFIRMATION_RULES", "Association", "Check", "Columns", "Decision", "Decisions", "EventKind",
-           "Evidence", "HitsRule", "Measurements", "Prediction", "Rule", "SequentialRule", "Statistic",
+           "Evidence", "Gates", "HitsRule", "Measurements", "Prediction", "Rule", "SequentialRule", "Statistic",
            "TrackEvent", "TrackManager", "TrackState", "TrackTable", "Verdict", "assign_confirmed_first",
-           "extrapolate", "gate_boxes"]
+           "assign_in_gates", "extrapolate", "gate_boxes"]

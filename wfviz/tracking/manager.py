@@ -29,7 +29,7 @@ import numpy as np
 
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 from wfviz.tracking import confirmation, kalman
-from wfviz.tracking.association import Association, Measurements, assign_confirmed_first
+from wfviz.tracking.association import Association, Gates, Measurements, assign_in_gates, claimed, nearest
 from wfviz.tracking.decision import Decision, Decisions, Evidence
 from wfviz.tracking.rules import CONFIRMATION_RULES, Rule
 from wfviz.tracking.table import TrackTable
@@ -52,25 +52,6 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
     s1, s3 = np.asarray(history[-1]), np.asarray(history[-3])
     s = s1 + (s1 - s3) / 2.0
     return float(s[0]), float(s[1])
-
-
-@dataclass(frozen=True)
-class Gates:
-    """The gates of :meth:`TrackManager.predict`'s predictions, one row per track: centres
-    (N, 2), half sizes (N, 2), confirmed and meeting flags, inverse innovation covariances
-    (N, 2, 2)."""
-
-    centre: np.ndarray
-    half: np.ndarray
-    confirmed: np.ndarray
-    meeting: np.ndarray
-    S_inv: np.ndarray
-
-    @classmethod
-    def empty(cls) -> Gates:
-        """No gates (no tracks)."""
-        return cls(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool),
-                   np.zeros((0, 2, 2)))
 
 
 @dataclass(frozen=True)
@@ -225,54 +206,31 @@ class TrackManager:
                     why = "meeting lasted too long" if expired else "separated"
                     self._event(EventKind.MEETING_OFF, i, f"{why}: filter re-initialised")
 
-    def _arrays(self, preds: list[Prediction]) -> tuple[np.ndarray, ...]:
-        """(centres, half sizes, confirmed, meeting) of ``preds`` (cached for predict's own)."""
-        if preds is self._preds:
-            g = self._gates
-            return g.centre, g.half, g.confirmed, g.meeting
-        return (np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2),
-                np.array([[p.half_w, p.half_h] for p in preds], dtype=np.float64).reshape(-1, 2),
-                np.array([p.confirmed for p in preds], dtype=bool),
-                np.array([p.meeting for p in preds], dtype=bool))
+    def _gates_of(self, preds: list[Prediction]) -> Gates:
+        """The gates of ``preds`` (predict's own: cached)."""
+        return self._gates if preds is self._preds else Gates.of(preds, self._gates.S_inv)
 
     # -- associate ------------------------------------------------------------------------
     def gate(self, preds: list[Prediction], xy: np.ndarray) -> Association:
         """The gates of ``preds`` over detections ``xy`` without pairs: each track's nearest
-        detection and the detections claimed by confirmed gates (for a tracker that pairs by
-        its own cost, :meth:`Association.with_pairs`)."""
-        return Association({}, self._nearest(preds, xy), self._claimed(preds, xy))
+        detection (within 2 ``gate_min``: a meeting track's evidence and static-clutter label)
+        and the detections claimed by confirmed gates (for a tracker that pairs by its own cost,
+        :meth:`Association.with_pairs`)."""
+        near = np.full(len(self), -1, dtype=np.int64)
+        if not preds or len(xy) == 0:
+            return Association({}, near, np.zeros(len(xy), dtype=bool))
+        g = self._gates_of(preds)
+        if len(preds) == len(self):
+            near = nearest(g, xy, 2.0 * self.kcfg.gate_min)
+        return Association({}, near, claimed(g, xy))
 
     def associate(self, preds: list[Prediction], xy: np.ndarray) -> Association:
-        """Global assignment of detections ``xy`` to tracks; confirmed tracks choose first.
-
-        A detection is a candidate for a track when it lies inside the track's gate; the
-        cost is the Mahalanobis distance under the innovation covariance. Tracks in meeting
-        mode take no measurement, and tentative tracks take none inside a confirmed track's
-        gate (so they cannot steal a meeting pair's detections). No detection is used twice.
-        """
+        """Global assignment of detections ``xy`` to tracks (:func:`assign_in_gates`: inside the
+        gates, by Mahalanobis distance, confirmed tracks first, meeting tracks take none)."""
         gated = self.gate(preds, xy)
         if not preds or len(xy) == 0:
             return gated
-        centres, halves, confirmed, meeting = self._arrays(preds)
-        diff = xy[None, :, :] - centres[:, None, :]
-        inside = (np.abs(diff) <= halves[:, None, :]).all(axis=2)
-        cost = np.einsum("tdi,tij,tdj->td", diff, self._gates.S_inv, diff)  # squared Mahalanobis
-        # a confirmed track's gate is off limits to tentative ones, even while it is meeting
-        return gated.with_pairs(assign_confirmed_first(cost, inside & ~meeting[:, None], confirmed,
-                                                       protected=inside[confirmed].any(axis=0)))
-
-    def _nearest(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
-        """Per track, the detection nearest its prediction within its gate and at most 2
-        ``gate_min`` away (-1: none); a meeting track's evidence (does its target still show
-        near its extrapolation?) and its static-clutter label come from it."""
-        out = np.full(len(self), -1, dtype=np.int64)
-        if not preds or len(xy) == 0 or len(preds) != len(self):
-            return out
-        centres, halves, _, _ = self._arrays(preds)
-        diff = xy[None, :, :] - centres[:, None, :]
-        near = (np.abs(diff) <= np.minimum(halves, 2.0 * self.kcfg.gate_min)[:, None, :]).all(axis=2)
-        dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
-        return np.where(near.any(axis=1), dist.argmin(axis=1), -1)
+        return gated.with_pairs(assign_in_gates(self._gates_of(preds), xy))
 
     def reacquire(self, preds: list[Prediction], xy: np.ndarray, association: Association,
                   eligible: np.ndarray, radius: float) -> Association:
@@ -284,7 +242,8 @@ class TrackManager:
         pairs = association.pairs
         if not preds or len(xy) == 0:
             return association
-        centres, _, confirmed, meeting = self._arrays(preds)
+        g = self._gates_of(preds)
+        centres, confirmed, meeting = g.centre, g.confirmed, g.meeting
         lost = np.array([i for i in np.nonzero(confirmed & ~meeting)[0].tolist() if i not in pairs],
                         dtype=np.int64)
         free = np.asarray(eligible, dtype=bool) & ~association.claimed
@@ -307,16 +266,6 @@ class TrackManager:
             self._event(EventKind.REACQUIRED, i, f"reacquired at ({xy[j, 0]:.1f}, {xy[j, 1]:.1f}), "
                                          f"{d[r, k]:.1f} px from its prediction (nothing in its gate)")
         return association.with_pairs(out)
-
-    def _claimed(self, preds: list[Prediction], xy: np.ndarray) -> np.ndarray:
-        """Detections inside a confirmed track's gate: they never start new tracks."""
-        if len(xy) == 0 or not preds:
-            return np.zeros(len(xy), dtype=bool)
-        centres, halves, confirmed, _ = self._arrays(preds)
-        if not confirmed.any():
-            return np.zeros(len(xy), dtype=bool)
-        c, h = centres[confirmed], halves[confirmed]
-        return (np.abs(xy[None, :, :] - c[:, None, :]) <= h[:, None, :]).all(axis=2).any(axis=0)
 
     # -- initiate -------------------------------------------------------------------------
     @staticmethod
