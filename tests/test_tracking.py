@@ -57,13 +57,18 @@ def test_paper_rule_confirms_after_six_hits_and_deletes_after_three_misses():
     frames = [[(50 + 1.0 * k, 40 + 0.5 * k)] for k in range(8)] + [[]] * 3
     events = _run(mgr, frames[:5])
     assert not any(e.kind == "confirmed" for e in events)          # 5 hits: still tentative
+    held = mgr.decision(mgr.track_ids[0])                            # the test that holds it back
+    assert (held.verdict, held.rule, held.test, held.reason) == ("keep", "hits", "hits", "hits 5 < 6")
     events = _run_from(mgr, frames, 5, 6)
     assert [e.kind for e in events] == ["confirmed"]                  # the 6th hit confirms
+    assert mgr.decision(mgr.track_ids[0]).verdict == "confirm" and mgr.confirmed_ids == mgr.track_ids
     events = _run_from(mgr, frames, 6, 10)
     assert not any(e.kind == "deleted" for e in events)               # 2 misses: kept
     events = _run_from(mgr, frames, 10, 11)
     assert [e.kind for e in events] == ["deleted"]                    # 3rd consecutive miss
     assert len(mgr) == 0
+    gone = mgr.decisions[events[0].track_id]                          # the deleted track's decision
+    assert (gone.verdict, gone.test, gone.reason) == ("delete", "misses", events[0].message)
 
 
 def test_hits_rule_confirmation_waits_for_round_hits_with_confirm_blobness():
@@ -179,7 +184,7 @@ def test_hits_rule_reacquire_after_a_jump_out_of_the_gate(radius, eligible, kept
     if kept:
         assert [e.kind for e in events] == ["reacquired"] and "8.0 px from its prediction" in events[0].message
         assert np.abs(mgr.innovations()[tid]).max() < 1e-9  # the filter restarted at the detection
-        assert abs(mgr.x[0, 1] - 48.0) < 1e-9 and abs(mgr.velocity(0)[0] - 1.0) < 0.3  # velocity kept
+        assert abs(mgr.tracks.x[0, 1] - 48.0) < 1e-9 and abs(mgr.velocity(0)[0] - 1.0) < 0.3  # velocity kept
     else:
         assert mgr.states()[0].misses == 1 and len(mgr) == 2  # a miss, and a new tentative track
 
@@ -374,7 +379,11 @@ def test_sprt_never_confirms_without_motion_or_change_evidence(case, points, nov
     events, mgr = _sprt_run(points, novelty=novelty)
     assert not any(e.kind == "confirmed" for e in events), case
     assert len(mgr) == 1 and mgr.states()[0].hits == len(points), case  # tracked all along
-    assert mgr.score[0] >= mgr.thresholds.confirm, case  # persistence alone would confirm it
+    assert mgr.rule.stats.score[0] >= mgr.thresholds.confirm, case  # persistence alone would confirm it
+    held = mgr.decision(mgr.track_ids[0])  # names the test that holds it back, with its value and level
+    test, level = ("not clutter", mgr.thresholds.confirm) if novelty == 0 else ("motion: T²", mgr.thresholds.motion)
+    assert held.verdict == "keep" and held.test == test and held.reason.startswith(test), case
+    assert held.reason.endswith(f" < {level:.3g}"), case
 
 
 def test_sprt_drops_faint_hits_in_a_cluttered_gate():
@@ -505,3 +514,66 @@ def test_every_registered_tracker_names_its_tracker_config_and_recorder():
         assert entry.tracker.__module__.startswith(home) and entry.config.__module__.startswith(home), name
         rec = recorder_class(name)
         assert issubclass(rec, Recorder) and rec.__module__.startswith("wfviz.record."), name
+
+
+def test_a_new_confirmation_rule_is_one_rule_class_and_its_registry_entry(monkeypatch):
+    """A toy rule with a statistic of its own (hits in a row): it confirms a track at its third
+    hit in a row and deletes it at its first miss. Registered under "toy", the manager runs it,
+    keeps its column in step with the track table through deletions and births, and each
+    track's Decision names the test, its value and its level."""
+    from dataclasses import dataclass
+
+    from wfviz.tracking import CONFIRMATION_RULES, Columns, Decisions, Evidence, Rule, Statistic, TrackTable
+
+    @dataclass(eq=False)
+    class Streak(Columns):
+        run: np.ndarray  # hits in a row (the birth is one)
+
+        @classmethod
+        def blank(cls, n: int) -> Streak:
+            return cls(run=np.ones(n))
+
+    class ThreeInARow(Rule):
+        Stats = Streak
+
+        def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
+            self.stats.run = np.where(e.measured, self.stats.run + 1, 0.0)
+            enough = self.stats.run >= 3
+            confirm, delete = e.measured & ~tracks.confirmed & enough, e.missed.copy()
+            return Decisions(confirm, delete, [""] * len(tracks), (
+                Statistic("hits in a row", self.stats.run.copy(), 3.0, ">=", enough),
+                Statistic("missed", e.missed.astype(float), 1.0, ">=", delete, deletes=True)))
+
+    monkeypatch.setitem(CONFIRMATION_RULES, "toy", ThreeInARow)
+    mgr = TrackManager(KalmanConfig(), TrackingConfig(confirm="toy"))
+    a = [(50.0 + f, 40.0) for f in range(4)]
+    frames = [[a[0], (100.0, 80.0)], [a[1], (101.0, 80.0)], [a[2]], [a[3], (20.0, 20.0)]]
+    events = []
+    for f in range(4):
+        events += _run_from(mgr, frames, f, f + 1)
+        assert len(mgr.rule.stats) == len(mgr)  # the rule's column follows the table
+        if f == 1:
+            held = mgr.decision(1)
+            assert (held.verdict, held.rule, held.test, held.reason) == ("keep", "toy", "hits in a row",
+                                                                         "hits in a row 2 < 3")
+        if f == 2:
+            assert mgr.decision(1).verdict == "confirm" and mgr.decision(2).test == "missed"
+    assert [(e.frame, e.kind, e.track_id) for e in events if e.kind != "born"] == [
+        (2, "confirmed", 1), (2, "deleted", 2)]
+    assert mgr.track_ids == [1, 3] and mgr.confirmed_ids == [1]
+    assert mgr.rule.stats.run.tolist() == [4.0, 1.0]
+
+
+def test_the_confirmation_rules_do_not_import_the_track_manager():
+    """The manager imports the rules and what they read and return, never the other way round."""
+    import ast
+    from pathlib import Path
+
+    import wfviz.tracking
+
+    home = Path(wfviz.tracking.__file__).parent
+    for name in ("rules", "decision", "table", "confirmation", "association", "tracks", "kalman"):
+        tree = ast.parse((home / f"{name}.py").read_text())
+        imported = {f"{n.module}.{a.name}" for n in ast.walk(tree) if isinstance(n, ast.ImportFrom) and n.module
+                    for a in n.names} | {n.module for n in ast.walk(tree) if isinstance(n, ast.ImportFrom)}
+        assert not any(m and m.startswith("wfviz.tracking.manager") for m in imported), name

@@ -1,6 +1,7 @@
 """Association of detections to tracks (Stone Soup's associator): the detections as the track
-manager reads them (:class:`Measurements`), the frame's :class:`Association`, and the global
-assignment with confirmed tracks first (:func:`assign_confirmed_first`)."""
+manager reads them (:class:`Measurements`), the predictions' :class:`Gates`, the frame's
+:class:`Association`, and the global assignment with confirmed tracks first
+(:func:`assign_confirmed_first`, :func:`assign_in_gates`)."""
 
 from __future__ import annotations
 
@@ -33,6 +34,62 @@ class Measurements:
 
     def __len__(self) -> int:
         return int(len(self.xy))
+
+
+@dataclass(frozen=True)
+class Gates:
+    """The rectangular gates of a frame's predictions, one row per track: centres (N, 2), half
+    sizes (N, 2), confirmed and meeting flags, inverse innovation covariances (N, 2, 2)."""
+
+    centre: np.ndarray
+    half: np.ndarray
+    confirmed: np.ndarray
+    meeting: np.ndarray
+    S_inv: np.ndarray
+
+    @classmethod
+    def empty(cls) -> Gates:
+        """No gates (no tracks)."""
+        return cls(np.zeros((0, 2)), np.zeros((0, 2)), np.zeros(0, dtype=bool), np.zeros(0, dtype=bool),
+                   np.zeros((0, 2, 2)))
+
+    @classmethod
+    def of(cls, preds: Sequence[Prediction], S_inv: np.ndarray) -> Gates:
+        """The gates of ``preds``, with inverse innovation covariances ``S_inv``."""
+        return cls(np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2),
+                   np.array([[p.half_w, p.half_h] for p in preds], dtype=np.float64).reshape(-1, 2),
+                   np.array([p.confirmed for p in preds], dtype=bool),
+                   np.array([p.meeting for p in preds], dtype=bool), S_inv)
+
+
+def nearest(g: Gates, xy: np.ndarray, reach: float) -> np.ndarray:
+    """Per gate, the detection of ``xy`` (N ≥ 1) nearest its centre within the gate and at most
+    ``reach`` px away on each axis (-1: none)."""
+    diff = xy[None, :, :] - g.centre[:, None, :]
+    near = (np.abs(diff) <= np.minimum(g.half, reach)[:, None, :]).all(axis=2)
+    dist = np.where(near, np.hypot(diff[..., 0], diff[..., 1]), np.inf)
+    return np.where(near.any(axis=1), dist.argmin(axis=1), -1)
+
+
+def claimed(g: Gates, xy: np.ndarray) -> np.ndarray:
+    """Per detection of ``xy``: inside a confirmed gate (such a detection never starts a track)."""
+    if not g.confirmed.any():
+        return np.zeros(len(xy), dtype=bool)
+    c, h = g.centre[g.confirmed], g.half[g.confirmed]
+    return (np.abs(xy[None, :, :] - c[:, None, :]) <= h[:, None, :]).all(axis=2).any(axis=0)
+
+
+def assign_in_gates(g: Gates, xy: np.ndarray) -> dict[int, int]:
+    """{gate row: detection} by global assignment of the detections ``xy`` (N ≥ 1) inside the
+    gates, at the cost of their squared Mahalanobis distance under the innovation covariance;
+    confirmed tracks choose first. Tracks in meeting mode take no measurement, and tentative
+    tracks take none inside a confirmed track's gate, even while it is meeting (so they cannot
+    steal a meeting pair's detections). No detection is used twice."""
+    diff = xy[None, :, :] - g.centre[:, None, :]
+    inside = (np.abs(diff) <= g.half[:, None, :]).all(axis=2)
+    cost = np.einsum("tdi,tij,tdj->td", diff, g.S_inv, diff)
+    return assign_confirmed_first(cost, inside & ~g.meeting[:, None], g.confirmed,
+                                  protected=inside[g.confirmed].any(axis=0))
 
 
 @dataclass(frozen=True)

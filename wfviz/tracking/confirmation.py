@@ -122,11 +122,6 @@ def change_evidence(z_change: np.ndarray, threshold: float, q_static: float, q_t
     return np.where(np.isfinite(zc), np.where(zc > threshold, yes, no), 0.0)
 
 
-def _q(k: float) -> float:
-    """Upper tail probability of a unit Gaussian."""
-    return 0.5 * math.erfc(k / math.sqrt(2.0))
-
-
 @dataclass(frozen=True)
 class Motion:
     """A track's motion over its recorded scene positions: Theil–Sen ``velocity`` (px per frame,

@@ -1,78 +1,135 @@
-"""Confirmation rules of :class:`wfviz.tracking.manager.TrackManager` (``tracking.confirm``): the
-GEWC paper's hit count (:class:`HitsRule`) and the sequential tests (:class:`SequentialRule`,
-:mod:`wfviz.tracking.confirmation`). A rule scores the new tracks (``start``) and decides each
-frame which tracks are confirmed and which deleted (``decide``) from the frame's :class:`Evidence`."""
+"""Confirmation rules of the track manager (``tracking.confirm``): the GEWC paper's hit count
+(:class:`HitsRule`) and the sequential tests (:class:`SequentialRule`,
+:mod:`wfviz.tracking.confirmation`).
+
+A rule (:class:`Rule`) owns the columns of its own statistics (:attr:`Rule.stats`, one row per
+track, kept in step with the track table by the manager); it starts them for the new tracks
+(:meth:`Rule.start`) and decides each frame from the :class:`~wfviz.tracking.decision.Evidence` and
+the :class:`~wfviz.tracking.table.TrackTable` which tracks are confirmed and which deleted
+(:meth:`Rule.decide`), returning :class:`~wfviz.tracking.decision.Decisions` with every test's
+values and levels. A new rule is one subclass here and one entry in :data:`CONFIRMATION_RULES`.
+"""
 
 from __future__ import annotations
 
 from dataclasses import dataclass
-from typing import TYPE_CHECKING
+from typing import ClassVar
 
 import numpy as np
 
+from wfviz.config import ClutterConfig, TrackingConfig
 from wfviz.tracking import confirmation
+from wfviz.tracking.association import Measurements
+from wfviz.tracking.decision import Decisions, Evidence, Statistic
+from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
-if TYPE_CHECKING:
-    from wfviz.tracking.manager import TrackManager
-
-@dataclass(frozen=True)
-class Evidence:
-    """One frame's evidence about every track (rows as the manager's), for a confirmation rule:
-    measured this frame, missed (not measured and not meeting), moved (px from the birth point,
-    in the scene), reported position, static-clutter labels of the measured and meeting tracks
-    (None: no clutter stage), false detections per pixel at each track, each hit's significance
-    ``z`` and novelty (NaN: none), the thresholds the gates were searched at (None: the frame's)."""
-
-    measured: np.ndarray
-    missed: np.ndarray
-    moved: np.ndarray
-    reported: np.ndarray
-    clutter: dict[int, float] | None
-    density: np.ndarray | None
-    z: np.ndarray
-    novelty: np.ndarray
-    gate_k: np.ndarray | None
+MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 
-class HitsRule:
+class Rule:
+    """A confirmation rule: its statistics (columns of type :attr:`Stats`, none by default),
+    started per new track by :meth:`start` and read and updated by :meth:`decide`.
+
+    ``tcfg``: the tracking section; ``detection_threshold``: the frame's detection threshold (σ);
+    ``clutter_rule``: the track rule of the static-clutter labels (None: no clutter stage)."""
+
+    Stats: ClassVar[type[Columns]] = Columns
+
+    def __init__(self, tcfg: TrackingConfig, detection_threshold: float = 4.0,
+                 clutter_rule: ClutterConfig | None = None) -> None:
+        self.tcfg = tcfg
+        self.detection_threshold = detection_threshold
+        self.clutter_rule = clutter_rule
+        self.stats = self.Stats.blank(0)
+
+    def start(self, births: Measurements, half: np.ndarray) -> None:
+        """Append the rows of the new tracks started by ``births`` (their first gate's half sizes
+        ``half``, (1, 2)) to :attr:`stats`: blank rows unless a rule scores its births."""
+        self.stats.append(self.Stats.blank(len(births)))
+
+    def keep(self, rows: np.ndarray) -> None:
+        """Keep the statistics of the tracks the manager keeps (mask ``rows``)."""
+        self.stats.keep(rows)
+
+    def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
+        """This frame's decisions on ``tracks`` (already updated with this frame's hits)."""
+        raise NotImplementedError
+
+
+def _measured(e: Evidence) -> Statistic:
+    """The test every rule makes before confirming: the track was measured this frame."""
+    return Statistic("hit this frame", e.measured.astype(np.float64), 1.0, ">=", e.measured)
+
+
+class HitsRule(Rule):
     """The GEWC paper's rule (Zhang Shuai et al. 2018; ``tracking.confirm = "hits"``): a track is
     confirmed at ``confirm_hits`` hits, and with the optional tests not in the paper (mean
     significance, blobness, displacement, movers, static clutter), deleted after
     ``max_misses`` consecutive misses. Births score nothing."""
 
-    def start(self, mgr: TrackManager, new: dict[str, np.ndarray], birth_scores: np.ndarray | None,
-              birth_density: np.ndarray | None, birth_novelty: np.ndarray | None) -> None:
-        """Initial evidence of the new tracks' rows ``new`` of ``mgr`` (none for this rule)."""
+    def mover(self, tracks: TrackTable, reported: np.ndarray, moved: np.ndarray) -> np.ndarray:
+        """Tracks that count as movers under ``tracking.confirm_moving`` (not in the paper):
+        updated in every frame since birth, ``confirm_moving`` px or more from the birth point
+        both in the scene (``moved``; camera motion removed) and in the image, along a path at
+        most 1 / ``confirm_straightness`` times that long, and (with the static-clutter stage)
+        with a mean static label of at most ``MOVER_MAX_STATIC``: the clutter stage agrees."""
+        tc = self.tcfg
+        if tc.confirm_moving <= 0:
+            return np.zeros(len(tracks), dtype=bool)
+        in_image = np.hypot(*(reported - tracks.birth_image).T)
+        return (tracks.gapless & (moved >= tc.confirm_moving) & (in_image >= tc.confirm_moving)
+                & (moved >= tc.confirm_straightness * tracks.path) & (tracks.clutter <= MOVER_MAX_STATIC))
 
-    def decide(self, mgr: TrackManager, e: Evidence) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """(confirm, delete, message per row: the confirmation's reasons, or a deletion's whole
-        message, "" for the usual one)."""
+    def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
+        """Confirm and delete; ``why``: the confirmation's reasons, or a deletion's whole message
+        ("" for the usual one)."""
         measured, missed, moved, reported, clutter = e.measured, e.missed, e.moved, e.reported, e.clutter
-        tc = mgr.tcfg
-        n = len(mgr)
+        tc = self.tcfg
+        n = len(tracks)
         need = tc.confirm_significance
-        mean_score = mgr.score_sum / np.maximum(mgr.hits, 1)
-        mean_shape = mgr.shape_sum / np.maximum(mgr.hits, 1)
-        mover = mgr._mover(reported, moved)
+        mean_score = tracks.score_sum / np.maximum(tracks.hits, 1)
+        mean_shape = tracks.shape_sum / np.maximum(tracks.hits, 1)
+        mover = self.mover(tracks, reported, moved)
         significant = ((need <= 0) | (mean_score >= need)
                        | (mover & (mean_score >= tc.confirm_moving_significance)))
-        confirm = (measured & ~mgr.confirmed & (mgr.hits >= tc.confirm_hits)
+        confirm = (measured & ~tracks.confirmed & (tracks.hits >= tc.confirm_hits)
                    & significant & (moved >= tc.min_displacement)
                    & ((tc.confirm_blobness <= 0) | (mean_shape >= tc.confirm_blobness)))
-        delete = missed & (mgr.misses >= tc.max_misses)
+        delete = missed & (tracks.misses >= tc.max_misses)
+        hits = tracks.hits.astype(np.float64)
+        stats = [_measured(e), Statistic("hits", hits, tc.confirm_hits, ">=", hits >= tc.confirm_hits)]
+        if need > 0:
+            level = np.where(mover, min(need, tc.confirm_moving_significance), need)
+            stats.append(Statistic("mean significance", mean_score, level, ">=", significant))
+        if tc.confirm_blobness > 0:
+            stats.append(Statistic("mean blobness", mean_shape, tc.confirm_blobness, ">=",
+                                   mean_shape >= tc.confirm_blobness))
+        if tc.min_displacement > 0:
+            stats.append(Statistic("displacement", moved, tc.min_displacement, ">=",
+                                   moved >= tc.min_displacement, unit="px"))
+        stats.append(Statistic("misses", tracks.misses.astype(np.float64), tc.max_misses, ">=",
+                               delete.copy(), deletes=True))
         static = np.zeros(n, dtype=bool)
-        if clutter is not None and mgr.clutter_rule is not None:
-            rule = mgr.clutter_rule
-            judged = mgr.clutter_known >= rule.min_known
-            static = judged & (mgr.clutter > rule.max_static)
+        if clutter is not None and self.clutter_rule is not None:
+            rule = self.clutter_rule
+            judged = tracks.clutter_known >= rule.min_known
+            static = judged & (tracks.clutter > rule.max_static)
+            labels = tracks.clutter.copy()
+            stats.append(Statistic("mean static label", labels, rule.max_static, "<=", ~static))
+            if rule.wait:
+                stats.append(Statistic("decided static labels", tracks.clutter_known.astype(np.float64),
+                                       rule.min_known, ">=", judged))
             confirm &= ~static & (judged | (not rule.wait))
-            static &= mgr.confirmed & ~delete & (mgr.clutter > rule.delete_static)
+            static &= tracks.confirmed & ~delete & (tracks.clutter > rule.delete_static)
             delete |= static
+            stats.append(Statistic("static clutter: mean static label", labels,
+                                   np.where(tracks.confirmed, rule.delete_static, np.inf), ">", static.copy(),
+                                   deletes=True))
         why = [""] * n
         for i in np.nonzero(confirm | static)[0].tolist():
             if static[i]:
                 why[i] = (f"deleted as static clutter (fixed in the scene among many detections: "
-                          f"mean static label {mgr.clutter[i]:.2f})")
+                          f"mean static label {tracks.clutter[i]:.2f})")
                 confirm[i] = False
                 continue
             w = f", mean significance {mean_score[i]:.1f}" if need > 0 else ""
@@ -81,10 +138,26 @@ class HitsRule:
             w += f", mean blobness {mean_shape[i]:.2f}" if tc.confirm_blobness > 0 else ""
             w += f", moved {moved[i]:.1f} px" if tc.min_displacement > 0 else ""
             why[i] = w
-        return confirm, delete, why
+        return Decisions(confirm, delete, why, tuple(stats))
 
 
-class SequentialRule:
+@dataclass(eq=False)
+class SequentialStats(Columns):
+    """The statistics of :class:`SequentialRule`, one row per track."""
+
+    score: np.ndarray          #: (N,) sequential test against noise (confirmation), nats
+    clutter_score: np.ndarray  #: (N,) test against static clutter: sum of ``clutter_hits``
+    static_cusum: np.ndarray   #: (N,) since confirmation: Page's CUSUM towards static clutter
+    clutter_hits: np.ndarray   #: (N, MOTION_HISTORY) clutter evidence of the last hits, oldest first
+
+    @classmethod
+    def blank(cls, n: int) -> SequentialStats:
+        """``n`` rows of zeros."""
+        return cls(score=np.zeros(n), clutter_score=np.zeros(n), static_cusum=np.zeros(n),
+                   clutter_hits=np.zeros((n, MOTION_HISTORY)))
+
+
+class SequentialRule(Rule):
     """Wald's sequential tests of :mod:`wfviz.tracking.confirmation` (not in the paper;
     ``tracking.confirm = "sprt"``): ``score`` against noise (hits and misses, where the hits lie
     in the gate, how significant they are) and ``clutter_score`` against static clutter (how new
@@ -99,88 +172,107 @@ class SequentialRule:
     test itself decides "static clutter" (with the default rates 8 unchanged hits in a row;
     a new hit takes 2.3 off W)."""
 
-    def start(self, mgr: TrackManager, new: dict[str, np.ndarray], birth_scores: np.ndarray | None,
-              birth_density: np.ndarray | None, birth_novelty: np.ndarray | None) -> None:
-        """Initial scores of the new tracks' rows ``new`` of ``mgr``."""
-        k = len(new["ids"])
-        half = mgr._birth_half
-        lam = np.zeros(k) if birth_density is None else np.asarray(birth_density, dtype=np.float64)
-        p_fa = confirmation.gate_false_alarm(lam, np.repeat(half, k, axis=0))
-        new["score"][:] = confirmation.score_change(np.ones(k, dtype=bool), mgr.tcfg.p_detect, p_fa)
-        if birth_scores is not None:
-            zb = np.asarray(birth_scores, dtype=np.float64)
-            new["score"] += confirmation.amplitude_score(zb, mgr.detection_threshold)
-            if birth_novelty is not None:
-                new["clutter_hits"][:, -1] = confirmation.change_evidence(
-                    np.asarray(birth_novelty, dtype=np.float64), mgr.detection_threshold,
-                    mgr.tcfg.static_change_rate, mgr.tcfg.target_change_rate)
-                new["clutter_score"][:] = new["clutter_hits"][:, -1]
+    Stats = SequentialStats
+    stats: SequentialStats
 
-    def decide(self, mgr: TrackManager, e: Evidence) -> tuple[np.ndarray, np.ndarray, list[str]]:
-        """(confirm, delete, message per row); sets ``mgr.thresholds`` to this frame's levels."""
+    def start(self, births: Measurements, half: np.ndarray) -> None:
+        """Initial scores of the new tracks: a hit in the first gate, with its significance and
+        its change evidence."""
+        k = len(births)
+        tc = self.tcfg
+        new = SequentialStats.blank(k)
+        lam = np.zeros(k) if births.density is None else np.asarray(births.density, dtype=np.float64)
+        p_fa = confirmation.gate_false_alarm(lam, np.repeat(half, k, axis=0))
+        new.score[:] = confirmation.score_change(np.ones(k, dtype=bool), tc.p_detect, p_fa)
+        if births.significance is not None:
+            zb = np.asarray(births.significance, dtype=np.float64)
+            new.score += confirmation.amplitude_score(zb, self.detection_threshold)
+            if births.novelty is not None:
+                new.clutter_hits[:, -1] = confirmation.change_evidence(
+                    np.asarray(births.novelty, dtype=np.float64), self.detection_threshold,
+                    tc.static_change_rate, tc.target_change_rate)
+                new.clutter_score[:] = new.clutter_hits[:, -1]
+        self.stats.append(new)
+
+    def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
+        """Score the frame's hits and misses, confirm, drop, delete; ``thresholds``: this frame's
+        levels."""
         measured, density, z, nov, gate_k = e.measured, e.density, e.z, e.novelty, e.gate_k
-        tc = mgr.tcfg
-        n = len(mgr)
-        th = confirmation.thresholds(tc.false_tracks_per_1000, mgr.tested_per_frame or 1.0,
+        tc, s = self.tcfg, self.stats
+        n = len(tracks)
+        th = confirmation.thresholds(tc.false_tracks_per_1000, e.tested_per_frame or 1.0,
                                     tc.beta, tc.p_lost)
-        mgr.thresholds = th
-        halves = mgr._pred_arrays[1] if len(mgr._pred_arrays) and len(mgr._pred_arrays[1]) == n \
-            else np.full((n, 2), mgr.kcfg.gate_max)
+        halves = e.half
         lam = np.zeros(n) if density is None else np.asarray(density, dtype=np.float64)
         p_fa = confirmation.gate_false_alarm(lam, halves)
         deep = gate_k is not None and len(gate_k) == n
-        k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), mgr.detection_threshold) if deep
-                  else np.full(n, mgr.detection_threshold))
+        k_gate = (np.minimum(np.asarray(gate_k, dtype=np.float64), self.detection_threshold) if deep
+                  else np.full(n, self.detection_threshold))
         if deep:  # where the gate was searched deeper, noise puts a hit there this often
-            p_fa = np.where(k_gate < mgr.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
+            p_fa = np.where(k_gate < self.detection_threshold, np.maximum(p_fa, tc.gate_false_alarm), p_fa)
         change = confirmation.score_change(measured, tc.p_detect, p_fa)
         clutter = np.zeros(n)
         m = np.nonzero(measured)[0]
         if m.size:
-            change[m] += confirmation.position_score(mgr.innovation[m], mgr._S_inv[m], halves[m])
+            change[m] += confirmation.position_score(tracks.innovation[m], e.S_inv[m], halves[m])
             change[m] += confirmation.amplitude_score(z[m], k_gate[m])
-            clutter[m] = confirmation.change_evidence(nov[m], mgr.detection_threshold,
+            clutter[m] = confirmation.change_evidence(nov[m], self.detection_threshold,
                                                      tc.static_change_rate, tc.target_change_rate)
         # a meeting track takes no measurement: no evidence while a detection lies near its
         # extrapolation, a miss when none does (it has lost its target)
-        change[mgr.meeting & ~measured & (mgr._nearest_now >= 0)] = 0.0
-        mgr.score += change
+        change[tracks.meeting & ~measured & (e.nearest >= 0)] = 0.0
+        s.score += change
         if m.size:  # a window of the last MOTION_HISTORY hits: old evidence does not linger
-            mgr.clutter_hits[m, :-1] = mgr.clutter_hits[m, 1:]
-            mgr.clutter_hits[m, -1] = clutter[m]
-            mgr.clutter_score[m] = mgr.clutter_hits[m].sum(axis=1)
-            mgr.static_cusum[m] = np.maximum(mgr.static_cusum[m] - clutter[m], 0.0)
-        conf = mgr.confirmed
-        mgr.score[conf] = np.minimum(mgr.score[conf], th.confirm)
-        confirm = measured & ~conf & (mgr.score >= th.confirm) & (mgr.clutter_score >= th.confirm)
-        if tc.require_motion and confirm.any():
-            r = np.nonzero(confirm)[0]
-            mo = confirmation.motion(mgr.motion_t[r], mgr.motion_xy[r], mgr.motion_ok[r],
-                                    tc.position_noise)
-            confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
+            s.clutter_hits[m, :-1] = s.clutter_hits[m, 1:]
+            s.clutter_hits[m, -1] = clutter[m]
+            s.clutter_score[m] = s.clutter_hits[m].sum(axis=1)
+            s.static_cusum[m] = np.maximum(s.static_cusum[m] - clutter[m], 0.0)
+        conf = tracks.confirmed
+        s.score[conf] = np.minimum(s.score[conf], th.confirm)
+        confirm = measured & ~conf & (s.score >= th.confirm) & (s.clutter_score >= th.confirm)
+        score, clutter_score = s.score.copy(), s.clutter_score.copy()
+        stats = [_measured(e), Statistic("persistence", score, th.confirm, ">=", score >= th.confirm),
+                 Statistic("not clutter", clutter_score, th.confirm, ">=", clutter_score >= th.confirm)]
+        if tc.require_motion:
+            t2, steady = np.full(n, np.nan), np.full(n, np.nan)
+            if confirm.any():
+                r = np.nonzero(confirm)[0]
+                mo = confirmation.motion(tracks.motion_t[r], tracks.motion_xy[r], tracks.motion_ok[r],
+                                         tc.position_noise)
+                confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
+                t2[r], steady[r] = mo.t2, mo.steady
+            stats += [Statistic("motion: T²", t2, th.motion, ">=", t2 >= th.motion),
+                      Statistic("motion: steady progress", steady, tc.min_motion / 2, ">=",
+                                steady >= tc.min_motion / 2, unit="px")]
         tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
-        drop = ~conf & (mgr.score <= th.drop + tie)
-        lost = conf & (mgr.score <= th.delete + tie)
+        drop = ~conf & (s.score <= th.drop + tie)
+        lost = conf & (s.score <= th.delete + tie)
         # a confirmed track that turned static: Page's CUSUM of the clutter evidence since
         # confirmation reaches the static-clutter level of the confirmation test
-        static = (conf & ~lost & (mgr.static_cusum >= -th.drop - tie) if tc.delete_when_static
+        static = (conf & ~lost & (s.static_cusum >= -th.drop - tie) if self.tcfg.delete_when_static
                   else np.zeros(n, dtype=bool))
-        mgr.static_cusum[confirm] = 0.0
+        stats.append(Statistic("persistence: deletion level", score, np.where(conf, th.delete, th.drop), "<=",
+                               drop | lost, deletes=True))
+        if self.tcfg.delete_when_static:
+            stats.append(Statistic("static clutter: CUSUM", s.static_cusum.copy(),
+                                   np.where(conf, -th.drop, np.inf), ">=", static, deletes=True))
+        s.static_cusum[confirm] = 0.0
         why = [""] * n
         for i in np.nonzero(confirm)[0].tolist():
-            why[i] = (f": persistence {mgr.score[i]:.1f} and not clutter {mgr.clutter_score[i]:.1f} "
+            why[i] = (f": persistence {s.score[i]:.1f} and not clutter {s.clutter_score[i]:.1f} "
                       f">= {th.confirm:.1f}")
         for i in np.nonzero(drop)[0].tolist():
-            why[i] = (f"dropped: persistence {mgr.score[i]:.1f} fell to {th.drop:.1f} (noise, not a target) "
-                      f"after {mgr.hits[i]} hits")
+            why[i] = (f"dropped: persistence {s.score[i]:.1f} fell to {th.drop:.1f} (noise, not a target) "
+                      f"after {tracks.hits[i]} hits")
         for i in np.nonzero(lost)[0].tolist():
-            why[i] = (f"deleted: score {mgr.score[i]:.1f} fell {th.confirm - mgr.score[i]:.1f} below "
-                      f"confirmation after {mgr.misses[i]} consecutive misses ({mgr.hits[i]} hits)")
+            why[i] = (f"deleted: score {s.score[i]:.1f} fell {th.confirm - s.score[i]:.1f} below "
+                      f"confirmation after {tracks.misses[i]} consecutive misses ({tracks.hits[i]} hits)")
         for i in np.nonzero(static)[0].tolist():
             why[i] = (f"deleted as static clutter: its last hits are not new at their place in the scene "
-                      f"(not clutter {mgr.clutter_score[i]:.1f}, CUSUM {mgr.static_cusum[i]:.1f})")
-        return confirm, drop | lost | static, why
+                      f"(not clutter {s.clutter_score[i]:.1f}, CUSUM {s.static_cusum[i]:.1f})")
+        return Decisions(confirm, drop | lost | static, why, tuple(stats), th)
 
 
-#: ``tracking.confirm`` -> the confirmation rule it selects
-CONFIRMATION_RULES: dict[str, type] = {"hits": HitsRule, "sprt": SequentialRule}
+#: ``tracking.confirm`` -> the confirmation rule it selects (a new rule: one entry here, and its
+#: name among the choices of ``TrackingConfig.confirm`` for configuration files)
+CONFIRMATION_RULES: dict[str, type[Rule]] = {"hits": HitsRule, "sprt": SequentialRule}
