@@ -137,7 +137,7 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
                 results, run_ms = stepper.advance(frame)
                 step = Step(frame, results, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3, run_ms)
                 tracker_ms += step.step_ms
-                confirmed.update(t.track_id for t in results[0].tracks if t.confirmed)
+                confirmed |= results[0].confirmed_ids
                 frames += 1  # counted before the sinks: one that raises KeyboardInterrupt had it
                 first = frame.index if first is None else first
                 last = frame.index

@@ -40,7 +40,7 @@ class DisagreementSink(BaseSink):
         f = step.frame.index
         for i, (result, ms) in enumerate(zip(step.results, step.run_ms)):
             self.ms_total[i] += ms
-            self.confirmed[i].update(t.track_id for t in result.tracks if t.confirmed)
+            self.confirmed[i] |= result.confirmed_ids
         points = [confirmed_points(r) for r in step.results]
         if self.truth is not None:
             cmp = self.diff.update(f, points, self.truth[0].get(f, []), self.truth[1].get(f, []))

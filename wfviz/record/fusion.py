@@ -63,7 +63,7 @@ class FusionRecorder(Recorder):
         if result.global_detection and not any(e.kind == EventKind.WINDOW_LOST for e in result.events):
             self.text(f"global detection ({result.global_reason}): "
                       f"{len(result.detections)} candidates", level="DEBUG")
-        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        confirmed = result.confirmed_ids
         for x in m:
             if x.track_id in confirmed:
                 self.scalar(f"fusion/{x.track_id}/phi", x.phi)

@@ -41,7 +41,7 @@ class GEWCRecorder(Recorder):
             np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
             class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5,
             show_labels=False))
-        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        confirmed = result.confirmed_ids
         for x in m:
             if x.track_id in confirmed:
                 self.bar(f"gewc/{x.track_id}", x.weights, track_color(x.track_id))

@@ -372,7 +372,7 @@ class Recorder:
     def log_kalman(self, result: FrameResult, innovations: dict[int, np.ndarray] | None = None) -> None:
         """``kalman/<id>/innovation`` (of the tracks updated this frame, when the tracker reports
         ``innovations``) and ``kalman/<id>/cov_trace`` of the confirmed tracks."""
-        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        confirmed = result.confirmed_ids
         for tid, nu in (innovations or {}).items():
             if tid in confirmed:
                 self.scalar(f"kalman/{tid}/innovation", float(np.hypot(*nu)))
@@ -423,7 +423,7 @@ class Recorder:
         self.scalar("detection/count", len(d))
         self.scalar("detection/threshold", d.threshold if np.isfinite(d.threshold) else np.nan)
         self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])
-        self.confirmed_ids.update(t.track_id for t in result.tracks if t.confirmed)
+        self.confirmed_ids |= result.confirmed_ids
         preds = result.predictions
         ids = [p.track_id for p in preds]
         conf = np.array([p.confirmed for p in preds], dtype=bool)
@@ -441,7 +441,7 @@ class Recorder:
         self._log_trails(result)
         for stage, ms in result.timings.items():
             self.scalar(f"timing/{stage}", ms)
-        confirmed = {t.track_id for t in result.tracks if t.confirmed} | self._labelled
+        confirmed = result.confirmed_ids | self._labelled
         for e in result.events:
             level = EVENT_LEVELS.get(e.kind, "INFO")
             if e.kind == EventKind.DELETED and e.track_id not in confirmed:

@@ -72,7 +72,7 @@ class TBDRecorder(Recorder):
                 colors=[REGION_COLORS[r.kind] for r in regions] or None, radii=0.3,
                 labels=[f"R{r.region_id} n={r.count}" for r in regions] or None, show_labels=False))
             self._regions_logged = True
-        confirmed = {t.track_id for t in result.tracks if t.confirmed}
+        confirmed = result.confirmed_ids
         for tid, amp in result.amplitudes.items():
             if tid in confirmed:
                 self.scalar(f"tbd/{tid}/amplitude", float(amp))

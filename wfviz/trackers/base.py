@@ -32,6 +32,11 @@ class FrameResult:
     events: tuple[TrackEvent, ...]
     timings: dict[str, float]
 
+    @property
+    def confirmed_ids(self) -> set[int]:
+        """The ids of this frame's confirmed tracks."""
+        return {t.track_id for t in self.tracks if t.confirmed}
+
 
 @dataclass(frozen=True, kw_only=True)
 class FrontEndTrackResult(FrameResult):

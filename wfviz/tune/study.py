@@ -217,6 +217,7 @@ def run_study(settings: StudySettings, study: Any, work: Path,
     remaining = max(1, settings.trials - len(finished(study)))
     pool = make_pool(min(settings.workers, remaining), settings.ray_address, settings.use_ray)
     cut = False  # a trial was cut short (in this process, its own run caught the signal)
+    caught: int | None = None  # the signal such a trial caught
     try:
         with StopSignals() as signals:
             def stop() -> bool:
@@ -247,12 +248,13 @@ def run_study(settings: StudySettings, study: Any, work: Path,
                     state.ran += 1
                 state.trials = finished(study)
                 cut = any(o is None or o.error == "interrupted" for o in outcomes)
+                caught = caught or next((o.signal for o in outcomes if o is not None and o.signal), None)
                 if on_batch is not None:
                     on_batch(state)
             state.interrupted = stop() and len(finished(study)) < settings.trials
             state.signal = signals.signum if state.interrupted else None
-            if state.interrupted and state.signal is None:
-                state.signal = signal.SIGINT  # a trial run in this process caught it
+            if state.interrupted and state.signal is None:  # a trial run in this process caught it
+                state.signal = caught or signal.SIGINT
     finally:
         pool.close()
     state.trials = finished(study)

@@ -37,12 +37,14 @@ class TrialTask:
 
 @dataclass(frozen=True)
 class TrialOutcome:
-    """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, and its wall time."""
+    """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, its wall time, and
+    the signal that cut it when it ran in the study's own process (its run caught it)."""
 
     number: int
     scores: dict[str, dict[str, float]] | None
     error: str | None
     seconds: float
+    signal: int | None = None
 
 
 def run_trial(task: TrialTask) -> TrialOutcome:
@@ -80,7 +82,8 @@ def _run(task: TrialTask) -> TrialOutcome:
             try:
                 summary = run(source, tracker, tracks_csv=csv_path, stop=task.stop)
                 if summary.interrupted:
-                    raise KeyboardInterrupt
+                    return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0,
+                                        summary.signal)
                 result = evaluate(csv_path, clip.truth, gate=task.gate)
             finally:
                 csv_path.unlink(missing_ok=True)
