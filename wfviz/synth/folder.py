@@ -18,7 +18,7 @@ import shutil
 from collections.abc import Callable
 from pathlib import Path
 
-from wfviz.io.outputs import OutputError, remove_stale, temp_dir
+from wfviz.io.outputs import OutputError, remove_stale, temp_dir, write_atomically
 
 MANIFEST = ".wfviz-synth.json"
 
@@ -66,10 +66,7 @@ def check_folder(folder: Path, what: str = "the clip") -> set[str]:
 
 
 def _write_manifest(folder: Path, names: set[str], by: str) -> None:
-    tmp = folder / f".{MANIFEST}.{os.getpid()}.part"
-    tmp.write_text(json.dumps({"written_by": by, "files": sorted(names)}, indent=1) + "\n",
-                   encoding="utf-8")
-    os.replace(tmp, folder / MANIFEST)
+    write_atomically(folder / MANIFEST, json.dumps({"written_by": by, "files": sorted(names)}, indent=1) + "\n")
 
 
 def write_folder(folder: Path, fill: Callable[[Path], None], *, by: str, what: str = "the clip") -> Path:
