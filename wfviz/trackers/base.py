@@ -17,12 +17,16 @@ from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEndResult
 from wfviz.tracking import Prediction, TrackEvent, TrackState
 from wfviz.tracking.confirmation import Thresholds
+from wfviz.tracking.decision import Verdicts
 
 
 @dataclass(frozen=True)
 class FrameResult:
     """Common per-frame output: tracks after update, predictions with gates, detections,
-    events (born, confirmed, deleted, ...) and stage timings in milliseconds."""
+    events (born, confirmed, deleted, ...) and stage timings in milliseconds; with a track
+    manager (GEWC, fusion), its ``verdicts`` (every confirmation and deletion test's value and
+    level) and ``detection_tracks`` (per detection, the track that took it or started from it,
+    -1: none). None: the tracker reports neither."""
 
     index: int
     time: float
@@ -31,6 +35,8 @@ class FrameResult:
     detections: Detections
     events: tuple[TrackEvent, ...]
     timings: dict[str, float]
+    verdicts: Verdicts | None = None
+    detection_tracks: np.ndarray | None = None
 
     @property
     def confirmed_ids(self) -> set[int]:

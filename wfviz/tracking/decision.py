@@ -148,3 +148,35 @@ class Decisions:
         if held is None:
             return Decision(Verdict.KEEP, rule, "", checks, "tentative")
         return Decision(Verdict.KEEP, rule, held.name, checks, str(held))
+
+
+@dataclass(frozen=True)
+class Verdicts:
+    """A track manager's decisions of one frame, as the recorder and the explanation read them:
+    the decided tracks' ``ids`` (rows as the rule's) and whether each was ``confirmed`` before
+    the frame, the rule's :class:`Decisions`, the tracks the manager ended itself (``gone``),
+    the event messages by row, the ``rule`` (``tracking.confirm``) and ``min_hits``: the fewest
+    hits in which any track can be confirmed under the rule at this frame's levels (a tentative
+    track with fewer cannot have been confirmed yet). :meth:`decision` builds one track's
+    :class:`Decision` on request (nothing is built for tracks nobody asks about)."""
+
+    ids: np.ndarray
+    confirmed: np.ndarray
+    decisions: Decisions
+    gone: np.ndarray
+    messages: dict[int, str]
+    rule: str
+    min_hits: int
+
+    def decision(self, track_id: int) -> Decision | None:
+        """The :class:`Decision` on track ``track_id`` (None: not decided this frame)."""
+        rows = np.nonzero(self.ids == track_id)[0]
+        return self._at(int(rows[0])) if len(rows) else None
+
+    def all(self) -> dict[int, Decision]:
+        """{track_id: :class:`Decision`} of every decided track (deleted ones included)."""
+        return {tid: self._at(r) for r, tid in enumerate(self.ids.tolist())}
+
+    def _at(self, row: int) -> Decision:
+        return self.decisions.decision(self.rule, row, bool(self.confirmed[row]), self.messages.get(row, ""),
+                                       bool(self.gone[row]))

@@ -23,14 +23,12 @@ in step with it.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
-
 import numpy as np
 
 from wfviz.config import ClutterConfig, KalmanConfig, TrackingConfig
 from wfviz.tracking import confirmation, kalman
 from wfviz.tracking.association import Association, Gates, Measurements, assign_in_gates, claimed, nearest
-from wfviz.tracking.decision import Decision, Decisions, Evidence
+from wfviz.tracking.decision import Decision, Evidence, Verdicts
 from wfviz.tracking.rules import CONFIRMATION_RULES, Rule
 from wfviz.tracking.table import TrackTable
 from wfviz.tracking.tracks import EventKind, Prediction, TrackEvent, TrackState
@@ -52,18 +50,6 @@ def extrapolate(history: list[tuple[float, float]] | np.ndarray) -> tuple[float,
     s1, s3 = np.asarray(history[-1]), np.asarray(history[-3])
     s = s1 + (s1 - s3) / 2.0
     return float(s[0]), float(s[1])
-
-
-@dataclass(frozen=True)
-class _Verdicts:
-    """The last update's decisions: the rows' ids and confirmed flags before it, the rule's
-    :class:`Decisions`, the tracks the manager ended itself (``gone``), event messages by row."""
-
-    ids: np.ndarray
-    confirmed: np.ndarray
-    decisions: Decisions
-    gone: np.ndarray
-    messages: dict[int, str]
 
 
 class TrackManager:
@@ -94,7 +80,11 @@ class TrackManager:
         self.thresholds: confirmation.Thresholds | None = None  # this frame's (confirm = "sprt")
         self.detection_threshold = detection_threshold
         self.rule: Rule = CONFIRMATION_RULES[tcfg.confirm](tcfg, detection_threshold, clutter_rule)
-        self._verdicts: _Verdicts | None = None
+        #: the last update's decisions (:class:`~wfviz.tracking.decision.Verdicts`; None before one)
+        self.verdicts: Verdicts | None = None
+        #: per detection of the last update: the id of the track that took it (paired) or started
+        #: from it, -1: neither (inside a confirmed gate, or not allowed to start a track)
+        self.detection_tracks = np.zeros(0, dtype=np.int64)
 
     @property
     def clutter_rule(self) -> ClutterConfig | None:
@@ -309,6 +299,9 @@ class TrackManager:
         its extrapolation."""
         d = detections
         pairs = association.pairs
+        owner = np.full(len(d), -1, dtype=np.int64)
+        if pairs:
+            owner[list(pairs.values())] = self.tracks.ids[list(pairs)]
         if frame_shape is not None:
             self.frame_shape = (int(frame_shape[0]), int(frame_shape[1]))
         if positions is None:
@@ -348,6 +341,8 @@ class TrackManager:
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
+        owner[born] = self._next_id + np.arange(len(born))
+        self.detection_tracks = owner
         self._birth(births)
         return self._events
 
@@ -415,7 +410,8 @@ class TrackManager:
                 messages[i] = self._event(EventKind.DELETED, i, why[i] or (
                     f"deleted after {t.misses[i]} consecutive misses "
                     f"({'confirmed' if t.confirmed[i] else 'tentative'}, {t.hits[i]} hits)"))
-        self._verdicts = _Verdicts(ids, was_confirmed, out, gone, messages)
+        self.verdicts = Verdicts(ids, was_confirmed, out, gone, messages, self.tcfg.confirm,
+                                 self.rule.min_hits(self.thresholds))
         ended = delete | gone
         if ended.any():
             keep = ~ended
@@ -500,22 +496,11 @@ class TrackManager:
     def decisions(self) -> dict[int, Decision]:
         """{track_id: :class:`Decision`} of the last :meth:`update`, for every track it decided on
         (those it deleted included): verdict, deciding test, each test's value and level, reason."""
-        v = self._verdicts
-        if v is None:
-            return {}
-        return {tid: self._decision(v, r) for r, tid in enumerate(v.ids.tolist())}
+        return {} if self.verdicts is None else self.verdicts.all()
 
     def decision(self, track_id: int) -> Decision | None:
         """The last :meth:`update`'s :class:`Decision` on track ``track_id`` (None: none)."""
-        v = self._verdicts
-        if v is None:
-            return None
-        rows = np.nonzero(v.ids == track_id)[0]
-        return self._decision(v, int(rows[0])) if len(rows) else None
-
-    def _decision(self, v: _Verdicts, row: int) -> Decision:
-        return v.decisions.decision(self.tcfg.confirm, row, bool(v.confirmed[row]), v.messages.get(row, ""),
-                                    bool(v.gone[row]))
+        return None if self.verdicts is None else self.verdicts.decision(track_id)
 
     def _event(self, kind: EventKind, i: int, message: str) -> str:
         """Record an event of the track in row ``i``; returns its message."""

@@ -12,6 +12,7 @@ values and levels. A new rule is one subclass here and one entry in :data:`CONFI
 
 from __future__ import annotations
 
+import math
 from dataclasses import dataclass
 from typing import ClassVar
 
@@ -23,6 +24,7 @@ from wfviz.tracking.association import Measurements
 from wfviz.tracking.decision import Decisions, Evidence, Statistic
 from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
+MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per third
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 
@@ -55,6 +57,12 @@ class Rule:
         """This frame's decisions on ``tracks`` (already updated with this frame's hits)."""
         raise NotImplementedError
 
+    def min_hits(self, levels: confirmation.Thresholds | None) -> int:
+        """The fewest hits in which any track can be confirmed under this rule at ``levels``
+        (the sequential test's of this frame; None: not known yet): a tentative track with fewer
+        cannot have been confirmed yet (confirmation latency, not a test holding it back)."""
+        return 1
+
 
 def _measured(e: Evidence) -> Statistic:
     """The test every rule makes before confirming: the track was measured this frame."""
@@ -79,6 +87,13 @@ class HitsRule(Rule):
         in_image = np.hypot(*(reported - tracks.birth_image).T)
         return (tracks.gapless & (moved >= tc.confirm_moving) & (in_image >= tc.confirm_moving)
                 & (moved >= tc.confirm_straightness * tracks.path) & (tracks.clutter <= MOVER_MAX_STATIC))
+
+    def min_hits(self, levels: confirmation.Thresholds | None) -> int:
+        """``confirm_hits`` (and, when the clutter rule waits for them, its ``min_known``
+        decided labels, one per hit at most)."""
+        rule = self.clutter_rule
+        wait = rule.min_known if rule is not None and rule.wait else 0
+        return max(self.tcfg.confirm_hits, wait, 1)
 
     def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
         """Confirm and delete; ``why``: the confirmation's reasons, or a deletion's whole message
@@ -193,6 +208,20 @@ class SequentialRule(Rule):
                     tc.static_change_rate, tc.target_change_rate)
                 new.clutter_score[:] = new.clutter_hits[:, -1]
         self.stats.append(new)
+
+    def min_hits(self, levels: confirmation.Thresholds | None) -> int:
+        """The "not clutter" test gains at most ln(target_change_rate / static_change_rate) per
+        hit (a changed hit), so it needs ``confirm`` / that many hits; the motion test's steady
+        progress is 0 with fewer than 6 positions (:func:`wfviz.tracking.confirmation.motion`);
+        the persistence test can be passed by the birth hit alone."""
+        tc = self.tcfg
+        per_hit = math.log(tc.target_change_rate / tc.static_change_rate)
+        need = 1
+        if levels is not None and per_hit > 0:
+            need = max(need, math.ceil(levels.confirm / per_hit - 1e-9))
+        if tc.require_motion and tc.min_motion > 0:
+            need = max(need, MOTION_MIN_POSITIONS)
+        return need
 
     def decide(self, tracks: TrackTable, e: Evidence) -> Decisions:
         """Score the frame's hits and misses, confirm, drop, delete; ``thresholds``: this frame's

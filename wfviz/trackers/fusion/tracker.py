@@ -300,6 +300,7 @@ class FusionTracker:
         return FusionResult(
             index=frame.index, time=frame.time, tracks=tuple(mgr.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings, front=fe,
+            verdicts=mgr.verdicts, detection_tracks=mgr.detection_tracks,
             innovations=mgr.innovations(), thresholds=mgr.thresholds,
             features=feats, matches=tuple(matches), assigned=assigned, global_detection=is_global,
             global_reason=reason, searched=tuple(searched),

@@ -106,6 +106,7 @@ class GEWCTracker:
         return GEWCResult(
             index=frame.index, time=frame.time, tracks=tuple(self.manager.states()),
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings, front=fe,
+            verdicts=self.manager.verdicts, detection_tracks=self.manager.detection_tracks,
             innovations=self.manager.innovations(), thresholds=self.manager.thresholds,
             measurements=tuple(meas.values()), clutter=labels)
 

@@ -42,7 +42,7 @@ class ChainView:
     kinds: tuple[str, ...]
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class StarfieldResult(FrameResult):
     """Every stage's output for one frame (the common fields come from FrameResult;
     ``detections`` are the candidates, ``stars`` every segmented point).

@@ -47,7 +47,7 @@ class Region:
     p0: float
 
 
-@dataclass(frozen=True)
+@dataclass(frozen=True, kw_only=True)
 class TBDResult(FrameResult):
     """Every stage's output for one frame (the common fields come from FrameResult).
 
