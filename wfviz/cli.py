@@ -96,6 +96,7 @@ BindOpt = Annotated[str, typer.Option("--bind", help="With --serve: the IP addre
 PortOpt = Annotated[int, typer.Option("--port", min=1, max=65535, help="With --spawn or --serve: the viewer's or server's gRPC port.")]
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
+ExplainOpt = Annotated[Optional[Path], typer.Option("--explain", help="With --truth: write the cause of every truth point in every frame to this CSV (frame,target_id,cause,detail,significance,det_dist,track_id) and of every false confirmed track point to <stem>-false.csv beside it, and print where Pd went (docs/debugging.md).", show_default=False)]
 SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
 NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pixels of float frames by 0 instead of stopping.")]
 
@@ -209,8 +210,10 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int):
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
-             inputs: tuple[tuple[Path | None, str], ...] = (), live=None) -> RunSummary:
-    _guard_outputs(recording, tracks, clip=clip, inputs=inputs)
+             inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None) -> RunSummary:
+    if explain is not None and truth is None:
+        raise ValueError(f"--explain {explain}: needs truth (--truth FILE)")
+    _guard_outputs(recording, tracks, *_explain_files(explain), clip=clip, inputs=inputs)
     total = clip.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
@@ -234,8 +237,17 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
             progress.update(task, advance=1, fps=count[0] / max(time.perf_counter() - t0, 1e-9))
 
         summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
-                      start=start, stop=stop, truth=truth, gate=gate, on_frame=tick)
+                      start=start, stop=stop, truth=truth, gate=gate, explain=explain, on_frame=tick)
     return summary
+
+
+def _explain_files(explain: Path | None) -> tuple[Path, ...]:
+    """The files ``--explain`` writes (none without it)."""
+    if explain is None:
+        return ()
+    from wfviz.explain.report import false_path
+
+    return explain, false_path(explain)
 
 
 def _read_truth(path: Path | None):
@@ -248,7 +260,7 @@ def _read_truth(path: Path | None):
     return read_truth(path)
 
 
-def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) -> None:
+def _report(summary: RunSummary, tracks: Path | None, recording: Path | None, explain: Path | None = None) -> None:
     signum = summary.signal or (signal.SIGINT if summary.interrupted else None)
     state = f"[yellow]interrupted by {signal.Signals(signum).name}[/]" if signum else "done"
     out.print(f"{state}: {summary.frames} frames in {summary.seconds:.2f} s "
@@ -264,9 +276,18 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None) ->
     if recording is not None:
         out.print(f"  recording: {display(recording)}{held if signum else ''}", highlight=False, markup=False)
         out.print(f"  open it:   rerun {display(recording)}", highlight=False, markup=False)
+    if explain is not None:
+        from wfviz.explain.report import false_path
+        out.print(f"  explain:   {display(explain)}, {display(false_path(explain))}{held if signum else ''}",
+                  highlight=False, markup=False)
     if summary.scores is not None:
         from wfviz.evaluate import format_table
         out.print(format_table(summary.scores), highlight=False, markup=False)
+    from wfviz.explain.report import ExplainSummary, format_summary
+    why = summary.facts.get(ExplainSummary)
+    if why is not None:
+        out.print("", highlight=False, markup=False)
+        out.print(format_summary(why), highlight=False, markup=False)
     if signum:
         raise typer.Exit(128 + signum)
 
@@ -296,6 +317,7 @@ def record(
     jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     truth: TruthOpt = None,
     gate: GateOpt = 3.0,
+    explain: ExplainOpt = None,
     skip_bad_frames: SkipBadOpt = False,
     nan_as_zero: NanOpt = False,
     spawn: SpawnOpt = False,
@@ -314,8 +336,8 @@ def record(
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
                        truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, exact_every=exact_every,
-                       inputs=_inputs(truth, config), live=live)
-    _report(summary, tracks, output)
+                       inputs=_inputs(truth, config), live=live, explain=explain)
+    _report(summary, tracks, output, explain)
 
 
 @app.command()
@@ -330,6 +352,7 @@ def track(
     fps: FpsOpt = None,
     truth: Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the tracks against it (the table is printed).")] = None,
     gate: GateOpt = 3.0,
+    explain: ExplainOpt = None,
     skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, counted in the closing summary) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
 ) -> None:
@@ -338,8 +361,9 @@ def track(
     truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
-                       image_every=0, source=str(clip), truth=truth_points, gate=gate, inputs=_inputs(truth, config))
-    _report(summary, tracks, None)
+                       image_every=0, source=str(clip), truth=truth_points, gate=gate, inputs=_inputs(truth, config),
+                       explain=explain)
+    _report(summary, tracks, None, explain)
 
 
 @app.command()
@@ -427,28 +451,46 @@ def synth(
 @app.command("eval")
 @_guarded
 def eval_(
-    tracks: Annotated[Path, typer.Argument(help="Tracks CSV (frame,track_id,x,y,confirmed).")],
-    truth: Annotated[Path, typer.Argument(help="Truth CSV (frame,target_id,x,y).")],
+    tracks: Annotated[Optional[Path], typer.Argument(help="Tracks CSV (frame,track_id,x,y,confirmed).", show_default=False)] = None,
+    truth: Annotated[Optional[Path], typer.Argument(help="Truth CSV (frame,target_id,x,y).", show_default=False)] = None,
     gate: Annotated[float, typer.Option("--gate", min=0.01, help="Match distance in pixels.")] = 3.0,
-    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores as JSON.")] = None,
+    json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores (and with --explain, where Pd went under \"explain\") as JSON.")] = None,
     all_rows: Annotated[bool, typer.Option("--all-rows", help="Score every row as a confirmed track (for CSVs without a 'confirmed' column, or to include tentative tracks).")] = False,
+    explain: Annotated[Optional[Path], typer.Option("--explain", help="An EXPLAIN.csv written by `record`/`track --explain`: print where Pd went (each cause's count and share in pipeline order, per target, and the false-track causes of <stem>-false.csv beside it). TRACKS and TRUTH may then be left out.", show_default=False)] = None,
 ) -> None:
-    """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f."""
+    """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
     import json
 
     from wfviz.evaluate import evaluate, format_table
 
-    for p in (tracks, truth):
-        if not p.is_file():
+    if explain is None and (tracks is None or truth is None):
+        raise ValueError("eval: give TRACKS and TRUTH (or --explain EXPLAIN.csv)")
+    if (tracks is None) != (truth is None):
+        raise ValueError("eval: give both TRACKS and TRUTH, or neither with --explain")
+    for p in (tracks, truth, explain):
+        if p is not None and not p.is_file():
             raise ValueError(f"{p}: no such file")
     if json_out is not None:
         check_writable(json_out)
-        _guard_outputs(json_out, inputs=((tracks, "the tracks CSV"), (truth, "the truth file")))
-    result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
-    out.print(format_table(result), highlight=False, markup=False)
+        from wfviz.explain.report import false_path
+        _guard_outputs(json_out, inputs=((tracks, "the tracks CSV"), (truth, "the truth file"),
+                                         (explain, "the explain file"),
+                                         (false_path(explain) if explain else None, "the explain file")))
+    data: dict = {}
+    if tracks is not None and truth is not None:
+        result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
+        out.print(format_table(result), highlight=False, markup=False)
+        data = result.to_dict()
+    if explain is not None:
+        from wfviz.explain.report import format_summary, read_explain
+        why = read_explain(explain)
+        if data:
+            out.print("", highlight=False, markup=False)
+        out.print(format_summary(why), highlight=False, markup=False)
+        data["explain"] = why.to_dict()
     if json_out is not None:
         from wfviz.io.outputs import write_atomically
-        write_atomically(json_out, json.dumps(result.to_dict(), indent=2) + "\n")
+        write_atomically(json_out, json.dumps(data, indent=2) + "\n")
         out.print(f"  json: {json_out}", highlight=False, markup=False)
 
 

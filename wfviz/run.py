@@ -186,12 +186,16 @@ def open_sinks(openers: Sequence[Callable[[], Sink]]) -> list[Sink]:
 
 def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recording: Path | None = None,
         recorder_options: RecorderOptions | None = None, start: int = 0, stop: int | None = None,
-        truth: tuple[Points, Points] | None = None, gate: float = 3.0,
+        truth: tuple[Points, Points] | None = None, gate: float = 3.0, explain: Path | None = None,
         on_frame: Callable[[Frame, FrameResult], None] | None = None) -> RunSummary:
     """Track ``clip`` frames ``start <= index < stop`` with the usual sinks (what ``wfviz
     record``, ``track`` and ``demo`` run): the tracks CSV, the recording, scores against
     ``truth`` (visible, hidden points from :func:`wfviz.evaluate.read_truth`, or a synthetic
-    clip's :meth:`truth_points`) and ``on_frame``.
+    clip's :meth:`truth_points`) and ``on_frame``. With truth, the causes of the misses and false
+    tracks (:mod:`wfviz.explain`) go to the recording, to ``explain`` (``EXPLAIN.csv`` and
+    ``EXPLAIN-false.csv``) and, summarised, to the summary's facts (an
+    :class:`~wfviz.explain.report.ExplainSummary`); without a recording or ``explain`` they are
+    not computed.
 
     Outputs are written to unique temporary files beside them
     (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends; on a signal the frames
@@ -201,12 +205,18 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     stepper = SingleRun(tracker)
     source = str(clip.path) if clip.path is not None else clip.name
     check_frame_size(clip.shape, source, stepper.min_frame_side())
-    for p in (tracks_csv, recording):
+    if explain is not None and truth is None:
+        raise ValueError(f"{explain}: --explain needs truth (--truth FILE)")
+    for p in (tracks_csv, recording, explain):
         if p is not None:
             check_writable(p)
     openers: list[Callable[[], Sink]] = []
     if truth is not None:
         openers.append(lambda: ScoreSink(truth, gate))
+        if explain is not None or recording is not None:
+            from wfviz.explain.sink import ExplainSink
+
+            openers.append(lambda: ExplainSink(truth, gate, tracker.name, tracker.config, explain))
     if tracks_csv is not None:
         openers.append(lambda: TracksSink(tracks_csv))
     if recording is not None:

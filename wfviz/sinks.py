@@ -18,13 +18,13 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Protocol, TextIO, TypeVar
+from typing import Any, Protocol, TypeVar
 
 import numpy as np
 
 from wfviz.evaluate import EvalResult, FrameErrors, Point, Points, evaluate_points, format_table, frame_errors
 from wfviz.io.frames import Clip, Frame
-from wfviz.io.outputs import OutputError, replace_into, temp_path
+from wfviz.io.outputs import OutputError, TextOutput, replace_into, temp_path
 from wfviz.record_options import RecorderOptions
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import TrackState
@@ -118,44 +118,18 @@ def confirmed_points(result: FrameResult) -> list[Point]:
     return [(t.track_id, t.x, t.y) for t in result.tracks if t.confirmed]
 
 
-class TracksWriter:
+class TracksWriter(TextOutput):
     """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track,
     written to a unique temporary file and renamed to ``path`` by :meth:`close`."""
 
     def __init__(self, path: Path) -> None:
-        self.path = path
-        self.temp = temp_path(path)
-        try:
-            self._fh: TextIO = open(self.temp, "w", newline="", encoding="utf-8")
-            self._fh.write(",".join(TRACKS_HEADER) + "\r\n")
-        except OSError as exc:
-            self.temp.unlink(missing_ok=True)
-            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+        super().__init__(path, ",".join(TRACKS_HEADER))
 
-    def write(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
+    def write_tracks(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
         """Append the rows of one frame."""
-        try:
-            self._fh.write("".join(
-                f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
-                for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
-
-    def close(self) -> None:
-        """Flush, close and rename into place."""
-        try:
-            self._fh.close()
-        except OSError as exc:
-            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
-        replace_into(self.temp, self.path)
-
-    def abort(self) -> None:
-        """Close and remove the partial file."""
-        try:
-            self._fh.close()
-        except OSError:  # e.g. the disk is full: the buffered rows cannot be flushed
-            pass
-        self.temp.unlink(missing_ok=True)
+        self.write("".join(
+            f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
+            for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
 
 
 class TracksSink(BaseSink):
@@ -168,7 +142,7 @@ class TracksSink(BaseSink):
 
     def step(self, step: Step) -> None:
         assert self.writer is not None
-        self.writer.write(step.frame.index, step.results[self.run].tracks)
+        self.writer.write_tracks(step.frame.index, step.results[self.run].tracks)
 
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:

@@ -23,10 +23,11 @@ class Cause(StrEnum):
     LOST = "lost"                      # its confirmed track is off it or deleted
 
 
-#: the causes of a missed visible point, in pipeline order: a point is lost at the first
-#: stage it does not pass (visible -> searched -> detected -> on a track -> confirmed -> matched)
-MISSES = (Cause.OUTSIDE_CIRCLE, Cause.OUTSIDE_REGION, Cause.NOT_DETECTED, Cause.NOT_ASSOCIATED,
-          Cause.LOST, Cause.LATENCY, Cause.NOT_CONFIRMED)
+#: the causes of a missed visible point, in the order they are decided: a point takes the first
+#: stage it does not pass (visible -> searched -> detected -> its confirmed track kept -> on a
+#: track -> old enough -> confirmed and matched)
+MISSES = (Cause.OUTSIDE_CIRCLE, Cause.OUTSIDE_REGION, Cause.NOT_DETECTED, Cause.LOST, Cause.NOT_ASSOCIATED,
+          Cause.LATENCY, Cause.NOT_CONFIRMED)
 
 
 class FalseCause(StrEnum):

@@ -186,3 +186,44 @@ def check_writable(path: Path) -> None:
         probe.unlink()
     except OSError as exc:
         raise OutputError(f"{parent}: output folder is not writable ({exc.strerror})") from None
+
+
+class TextOutput:
+    """A text file written to a unique temporary name beside ``path`` (:func:`temp_path`) and
+    renamed into place by :meth:`close` (:meth:`abort`: removed). ``header``: its first line.
+    Write errors are :class:`OutputError` naming ``path``."""
+
+    def __init__(self, path: Path, header: str = "", newline: str = "\r\n") -> None:
+        self.path = path
+        self.temp = temp_path(path)
+        self.newline = newline
+        try:
+            self._fh = open(self.temp, "w", newline="", encoding="utf-8")
+            if header:
+                self._fh.write(header + newline)
+        except OSError as exc:
+            self.temp.unlink(missing_ok=True)
+            raise OutputError(f"{path}: cannot write ({exc.strerror or exc})") from None
+
+    def write(self, text: str) -> None:
+        """Append ``text`` as it is."""
+        try:
+            self._fh.write(text)
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+
+    def close(self) -> None:
+        """Flush, close and rename into place."""
+        try:
+            self._fh.close()
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        replace_into(self.temp, self.path)
+
+    def abort(self) -> None:
+        """Close and remove the partial file."""
+        try:
+            self._fh.close()
+        except OSError:  # e.g. the disk is full: the buffered rows cannot be flushed
+            pass
+        self.temp.unlink(missing_ok=True)

@@ -529,13 +529,20 @@ def search_region(valid: np.ndarray, horizon: Horizon | None, margin: float) -> 
     """
     if not horizon_confident(horizon):
         return valid
+    yy = np.arange(valid.shape[0])[:, None]
+    return valid & (yy < search_limit(horizon, margin)[None, :])
+
+
+def search_limit(horizon: Horizon, margin: float) -> np.ndarray:
+    """Per column, the row the deep-sky search region stops at (:func:`search_region`: rows
+    above it are searched; inf where the column has no horizon): the lowest horizon row within
+    ``margin`` columns either side, minus ``margin``."""
     rows = np.where(np.isfinite(horizon.rows), horizon.rows, np.inf)
     k = int(np.ceil(margin))
     if k > 0:
         padded = np.pad(rows, k, mode="edge")
         rows = np.min(np.lib.stride_tricks.sliding_window_view(padded, 2 * k + 1), axis=1)
-    yy = np.arange(valid.shape[0])[:, None]
-    return valid & (yy < (rows - margin)[None, :])
+    return rows - margin
 
 
 def search_zones(valid: np.ndarray, horizon: Horizon | None, margin: float, exclude_ground: str,

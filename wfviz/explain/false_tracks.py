@@ -1,0 +1,172 @@
+"""The cause of every confirmed track point that matches no truth
+(:class:`~wfviz.explain.types.FalseCause`), decided by the first of these rules that holds
+(docs/debugging.md, "False tracks"):
+
+1. ``duplicate``: within ``DUPLICATE_GATES`` gates of a visible target another track matches;
+2. ``off_target``: the track matched a target before (it drifted off, or the target left it);
+3. ``defect``: within 1 px of a pixel flagged as a sensor defect;
+4. ``camera_motion``: at least ``COMMON_TRACKS`` false tracks of the frame move alike (velocities
+   within ``COMMON_VELOCITY`` px/frame of their median, which is at least ``MIN_SPEED``): the
+   scene moved, the camera's motion was not compensated;
+5. ``static_in_scene``: over its last ``STATIC_FRAMES`` frames (``STATIC_MIN`` at least) its
+   positions in the scene (camera motion removed) stay within ``STATIC_SPREAD`` px of their median;
+6. ``structure``: on the sky–ground line (within ``HORIZON_RANGE`` px), or its detection is
+   elongated (``ELONGATION`` times longer than wide and ``LINE_LENGTH`` px long), extended
+   (``EXTENDED_AREA`` px or more) or a ridge (blobness below ``RIDGE_BLOBNESS``);
+7. ``unknown``.
+"""
+
+from __future__ import annotations
+
+import math
+from collections import deque
+from typing import Any
+
+import numpy as np
+
+from wfviz.explain.types import FalseCause, FalseExplanation
+from wfviz.stages.front_end import FrontEndResult
+from wfviz.stages.horizon import horizon_confident
+from wfviz.trackers.base import FrameResult
+from wfviz.tracking import TrackState
+
+Point = tuple[int, float, float]
+
+DUPLICATE_GATES = 3.0
+COMMON_TRACKS = 3
+COMMON_VELOCITY = 0.5
+MIN_SPEED = 0.3
+STATIC_FRAMES = 10
+STATIC_MIN = 5
+STATIC_SPREAD = 1.0
+HORIZON_RANGE = 3.0
+ELONGATION = 3.0
+LINE_LENGTH = 5
+EXTENDED_AREA = 30
+RIDGE_BLOBNESS = 0.3
+
+
+class FalseCauses:
+    """Causes of the false confirmed track points frame after frame (:meth:`explain`); it keeps
+    each live track's last ``STATIC_FRAMES`` scene positions and the target each track matched.
+    ``gate``: the scorer's match distance (px)."""
+
+    def __init__(self, gate: float) -> None:
+        self.gate = gate
+        self._scene: dict[int, deque[tuple[float, float]]] = {}
+        self._matched: dict[int, tuple[int, int]] = {}  # track -> (target, last frame)
+
+    def explain(self, result: FrameResult, shown: list[Point], hidden: list[Point],
+                matches: tuple[tuple[int, int, float], ...]) -> tuple[FalseExplanation, ...]:
+        """The cause of every confirmed track of ``result`` that ``matches`` (the scorer's
+        (track_id, target_id, distance)) leaves unmatched, those on ``hidden`` targets left out."""
+        f = result.index
+        front: FrontEndResult | None = getattr(result, "front", None)
+        self._remember(result, front)
+        taken = {track for track, _, _ in matches}
+        false = [t for t in result.tracks if t.confirmed and t.track_id not in taken]
+        false = _off_hidden(false, hidden, self.gate)
+        common = self._common_motion(false)
+        out = []
+        for t in false:
+            cause, detail = self._cause(result, front, t, shown, matches, common)
+            out.append(FalseExplanation(f, t.track_id, t.x, t.y, cause, detail))
+        for track, target, _ in matches:
+            self._matched[track] = (target, f)
+        return tuple(out)
+
+    def _remember(self, result: FrameResult, front: FrontEndResult | None) -> None:
+        """Each live track's scene position (its image position minus the camera's offset)."""
+        off = front.offset if front is not None else np.zeros(2)
+        ox, oy = float(off[0]), float(off[1])
+        live = set()
+        for t in result.tracks:
+            live.add(t.track_id)
+            self._scene.setdefault(t.track_id, deque(maxlen=STATIC_FRAMES)).append((t.x - ox, t.y - oy))
+        for tid in [k for k in self._scene if k not in live]:
+            del self._scene[tid]
+
+    @staticmethod
+    def _common_motion(false: list[TrackState]) -> dict[int, str]:
+        """{track: detail} of the false tracks that move alike (rule 4)."""
+        if len(false) < COMMON_TRACKS:
+            return {}
+        v = np.array([[t.vx, t.vy] for t in false])
+        med = np.median(v, axis=0)
+        alike = np.hypot(*(v - med).T) <= COMMON_VELOCITY
+        speed = float(np.hypot(*med))
+        if alike.sum() < COMMON_TRACKS or speed < MIN_SPEED:
+            return {}
+        detail = (f"moves with {int(alike.sum()) - 1} other false tracks at ({med[0]:.2f}, {med[1]:.2f}) px/frame: "
+                  f"the scene moved")
+        return {t.track_id: detail for t, a in zip(false, alike.tolist()) if a}
+
+    def _cause(self, result: FrameResult, front: FrontEndResult | None, t: TrackState, shown: list[Point],
+               matches: tuple[tuple[int, int, float], ...], common: dict[int, str]) -> tuple[FalseCause, str]:
+        for track, target, _ in matches:
+            p = next(((x, y) for i, x, y in shown if i == target), None)
+            if p is not None and math.hypot(t.x - p[0], t.y - p[1]) <= DUPLICATE_GATES * self.gate:
+                return FalseCause.DUPLICATE, (f"{math.hypot(t.x - p[0], t.y - p[1]):.1f} px from target {target}, "
+                                              f"which track {track} matches")
+        if t.track_id in self._matched:
+            target, last = self._matched[t.track_id]
+            p = next(((x, y) for i, x, y in shown if i == target), None)
+            where = f", now {math.hypot(t.x - p[0], t.y - p[1]):.1f} px from it" if p is not None else ""
+            return FalseCause.OFF_TARGET, f"matched target {target} until frame {last}{where}"
+        if front is not None and len(front.bad_pixels):
+            bad = front.bad_pixels
+            r, c = int(round(t.y)), int(round(t.x))
+            if ((np.abs(bad[:, 0] - r) <= 1) & (np.abs(bad[:, 1] - c) <= 1)).any():
+                return FalseCause.DEFECT, "within 1 px of a pixel flagged as a sensor defect"
+        if t.track_id in common:
+            cam = front.camera if front is not None else None
+            state = ("motion not compensated" if cam is None else
+                     f"camera motion {'measured' if cam.reliable else 'lost'}, {cam.corners} corners agreed")
+            return FalseCause.CAMERA_MOTION, f"{common[t.track_id]} ({state})"
+        scene = self._scene.get(t.track_id)
+        if scene is not None and len(scene) >= STATIC_MIN:
+            pts = np.asarray(scene)
+            spread = float(np.hypot(*(pts - np.median(pts, axis=0)).T).max())
+            if spread <= STATIC_SPREAD:
+                return FalseCause.STATIC_IN_SCENE, (f"fixed in the scene: within {spread:.2f} px of one point over "
+                                                    f"its last {len(pts)} frames (camera motion removed)")
+        structure = _structure(result, front, t)
+        if structure:
+            return FalseCause.STRUCTURE, structure
+        return FalseCause.UNKNOWN, ""
+
+
+def _off_hidden(tracks: list[TrackState], hidden: list[Point], gate: float) -> list[TrackState]:
+    """``tracks`` minus those the scorer ignores as on a hidden target (one track per hidden
+    target within the gate, :func:`wfviz.evaluate.frame_errors`)."""
+    if not hidden or not tracks:
+        return tracks
+    from wfviz.evaluate import _assign
+
+    on = {j for _, j, _ in _assign(hidden, [(t.track_id, t.x, t.y) for t in tracks], gate)}
+    return [t for j, t in enumerate(tracks) if j not in on]
+
+
+def _structure(result: FrameResult, front: FrontEndResult | None, t: TrackState) -> str:
+    """Why the track's place is structure (rule 6), or ""."""
+    if front is not None and horizon_confident(front.horizon) and front.horizon is not None:
+        rows = front.horizon.rows
+        c = min(max(int(round(t.x)), 0), len(rows) - 1)
+        if np.isfinite(rows[c]) and abs(t.y - rows[c]) <= HORIZON_RANGE:
+            return f"on the sky–ground line ({t.y - rows[c]:+.1f} px from it)"
+    dets = result.detections
+    if not len(dets):
+        return ""
+    d = np.hypot(dets.xy[:, 0] - t.x, dets.xy[:, 1] - t.y)
+    j = int(np.argmin(d))
+    if d[j] > 2.0:
+        return ""
+    w, h, area = int(dets.bbox[j, 2]), int(dets.bbox[j, 3]), int(dets.area[j])
+    if max(w, h) >= ELONGATION * min(w, h) and max(w, h) >= LINE_LENGTH:
+        return f"on an elongated component ({w}×{h} px): an edge or a line"
+    if area >= EXTENDED_AREA:
+        return f"on an extended component ({area} px)"
+    blob: Any = dets.blobness
+    if blob is not None and blob[j] < RIDGE_BLOBNESS:
+        return f"on a ridge (blobness {blob[j]:.2f} < {RIDGE_BLOBNESS})"
+    return ""

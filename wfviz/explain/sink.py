@@ -1,0 +1,62 @@
+"""The explanation as a sink of the drive loop (:mod:`wfviz.sinks`): each frame's
+:class:`~wfviz.explain.types.FrameExplanation` published for the recording, the explain files
+written, and the run's :class:`~wfviz.explain.report.ExplainSummary` published at the end."""
+
+from __future__ import annotations
+
+from pathlib import Path
+from typing import Any
+
+from wfviz.evaluate import Points
+from wfviz.explain.false_tracks import FalseCauses
+from wfviz.explain.report import ExplainSummary, ExplainWriter, summarise
+from wfviz.explain.truth import TruthCauses
+from wfviz.explain.types import FrameExplanation
+from wfviz.sinks import BaseSink, FrameTruth, RunEnd, Step, confirmed_points
+
+
+class ExplainSink(BaseSink):
+    """Causes of run ``run``'s misses and false tracks against ``truth`` (visible, hidden
+    points), matched as the scores match them (its own :class:`~wfviz.sinks.FrameTruth`, the
+    same function as :class:`~wfviz.sinks.ScoreSink`'s); ``tracker`` and ``config``: the run's
+    tracker name and configuration; ``path``: write ``EXPLAIN.csv`` and ``EXPLAIN-false.csv``
+    there (None: publish only, for the recording and the summary)."""
+
+    def __init__(self, truth: tuple[Points, Points], gate: float, tracker: str, config: Any,
+                 path: Path | None = None, run: int = 0) -> None:
+        self.shown, self.hidden = truth
+        self.gate, self.run = gate, run
+        self.truth_causes = TruthCauses(tracker, config, gate)
+        self.false_causes = FalseCauses(gate)
+        self.rows: list[tuple[int, str]] = []
+        self.false: list[str] = []
+        self.writer = ExplainWriter(path) if path is not None else None
+
+    def publish(self, step: Step) -> None:
+        f = step.frame.index
+        result = step.results[self.run]
+        ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate)
+        matches = ft.errors.matches
+        truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches)
+        false = self.false_causes.explain(result, ft.shown, ft.hidden, matches)
+        self.rows += [(e.target_id, e.cause.value) for e in truth]
+        self.false += [e.cause.value for e in false]
+        if self.writer is not None:
+            self.writer.write(truth, false)
+        step.facts.put(FrameExplanation(f, truth, false), self.run)
+
+    def conclude(self, end: RunEnd) -> None:
+        end.facts.put(summarise(self.rows, self.false), self.run)
+
+    def finish(self, end: RunEnd) -> None:
+        if self.writer is not None:
+            self.writer.close()
+            self.writer = None
+
+    def abort(self) -> None:
+        if self.writer is not None:
+            self.writer.abort()
+            self.writer = None
+
+
+__all__ = ["ExplainSink", "ExplainSummary"]
