@@ -5,9 +5,10 @@
 1. ``duplicate``: within ``DUPLICATE_GATES`` gates of a visible target another track matches;
 2. ``off_target``: the track matched a target before (it drifted off, or the target left it);
 3. ``defect``: within 1 px of a pixel flagged as a sensor defect;
-4. ``camera_motion``: at least ``COMMON_TRACKS`` false tracks of the frame move alike (velocities
-   within ``COMMON_VELOCITY`` px/frame of their median, which is at least ``MIN_SPEED``): the
-   scene moved, the camera's motion was not compensated;
+4. ``camera_motion``: it moves (``MIN_SPEED`` px/frame at least) and so do ``COMMON_TRACKS`` - 1
+   other tracks matching no truth (tentative ones with ``MIN_HITS`` hits included) with a velocity
+   within ``COMMON_VELOCITY`` px/frame of its own: the scene moved, the camera's motion was not
+   compensated;
 5. ``static_in_scene``: over its last ``STATIC_FRAMES`` frames (``STATIC_MIN`` at least) its
    positions in the scene (camera motion removed) stay within ``STATIC_SPREAD`` px of their median;
 6. ``structure``: on the sky–ground line (within ``HORIZON_RANGE`` px), or its detection is
@@ -36,6 +37,7 @@ DUPLICATE_GATES = 3.0
 COMMON_TRACKS = 3
 COMMON_VELOCITY = 0.5
 MIN_SPEED = 0.3
+MIN_HITS = 3
 STATIC_FRAMES = 10
 STATIC_MIN = 5
 STATIC_SPREAD = 1.0
@@ -66,7 +68,7 @@ class FalseCauses:
         taken = {track for track, _, _ in matches}
         false = [t for t in result.tracks if t.confirmed and t.track_id not in taken]
         false = _off_hidden(false, hidden, self.gate)
-        common = self._common_motion(false)
+        common = self._common_motion(result, false, taken)
         out = []
         for t in false:
             cause, detail = self._cause(result, front, t, shown, matches, common)
@@ -87,19 +89,23 @@ class FalseCauses:
             del self._scene[tid]
 
     @staticmethod
-    def _common_motion(false: list[TrackState]) -> dict[int, str]:
-        """{track: detail} of the false tracks that move alike (rule 4)."""
-        if len(false) < COMMON_TRACKS:
+    def _common_motion(result: FrameResult, false: list[TrackState], taken: set[int]) -> dict[int, str]:
+        """{track: detail} of the false tracks that move alike with other tracks (rule 4): the
+        live tracks with ``MIN_HITS`` hits or more that match no truth, tentative ones included."""
+        if not false:
             return {}
-        v = np.array([[t.vx, t.vy] for t in false])
-        med = np.median(v, axis=0)
-        alike = np.hypot(*(v - med).T) <= COMMON_VELOCITY
-        speed = float(np.hypot(*med))
-        if alike.sum() < COMMON_TRACKS or speed < MIN_SPEED:
+        others = [t for t in result.tracks if t.hits >= MIN_HITS and t.track_id not in taken]
+        if len(others) < COMMON_TRACKS:
             return {}
-        detail = (f"moves with {int(alike.sum()) - 1} other false tracks at ({med[0]:.2f}, {med[1]:.2f}) px/frame: "
-                  f"the scene moved")
-        return {t.track_id: detail for t, a in zip(false, alike.tolist()) if a}
+        v = np.array([[t.vx, t.vy] for t in others])
+        out = {}
+        for t in false:
+            d = np.hypot(v[:, 0] - t.vx, v[:, 1] - t.vy)
+            alike = int((d <= COMMON_VELOCITY).sum())  # itself included
+            if alike >= COMMON_TRACKS and math.hypot(t.vx, t.vy) >= MIN_SPEED:
+                out[t.track_id] = (f"moves at ({t.vx:.2f}, {t.vy:.2f}) px/frame with {alike - 1} other unmatched "
+                                   f"tracks alike: the scene moved")
+        return out
 
     def _cause(self, result: FrameResult, front: FrontEndResult | None, t: TrackState, shown: list[Point],
                matches: tuple[tuple[int, int, float], ...], common: dict[int, str]) -> tuple[FalseCause, str]:
