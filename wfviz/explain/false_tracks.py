@@ -98,13 +98,14 @@ class FalseCauses:
         if len(others) < COMMON_TRACKS:
             return {}
         v = np.array([[t.vx, t.vy] for t in others])
+        f = np.array([[t.vx, t.vy] for t in false])
+        alike = (np.hypot(f[:, None, 0] - v[None, :, 0], f[:, None, 1] - v[None, :, 1]) <= COMMON_VELOCITY).sum(axis=1)
+        moving = np.hypot(f[:, 0], f[:, 1]) >= MIN_SPEED
         out = {}
-        for t in false:
-            d = np.hypot(v[:, 0] - t.vx, v[:, 1] - t.vy)
-            alike = int((d <= COMMON_VELOCITY).sum())  # itself included
-            if alike >= COMMON_TRACKS and math.hypot(t.vx, t.vy) >= MIN_SPEED:
-                out[t.track_id] = (f"moves at ({t.vx:.2f}, {t.vy:.2f}) px/frame with {alike - 1} other unmatched "
-                                   f"tracks alike: the scene moved")
+        for i in np.nonzero((alike >= COMMON_TRACKS) & moving)[0].tolist():  # itself among the alike
+            t = false[i]
+            out[t.track_id] = (f"moves at ({t.vx:.2f}, {t.vy:.2f}) px/frame with {int(alike[i]) - 1} other "
+                               f"unmatched tracks alike: the scene moved")
         return out
 
     def _cause(self, result: FrameResult, front: FrontEndResult | None, t: TrackState, shown: list[Point],
