@@ -432,6 +432,7 @@ def eval_(
     gate: Annotated[float, typer.Option("--gate", min=0.01, help="Match distance in pixels.")] = 3.0,
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores as JSON.")] = None,
     all_rows: Annotated[bool, typer.Option("--all-rows", help="Score every row as a confirmed track (for CSVs without a 'confirmed' column, or to include tentative tracks).")] = False,
+    no_boxes: Annotated[bool, typer.Option("--no-boxes", help="Match within --gate only, even when the truth has box sizes (w,h columns; by default a track inside the box matches too).")] = False,
 ) -> None:
     """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f."""
     import json
@@ -444,7 +445,7 @@ def eval_(
     if json_out is not None:
         check_writable(json_out)
         _guard_outputs(json_out, inputs=((tracks, "the tracks CSV"), (truth, "the truth file")))
-    result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
+    result = evaluate(tracks, truth, gate=gate, all_rows=all_rows, use_boxes=not no_boxes)
     out.print(format_table(result), highlight=False, markup=False)
     if json_out is not None:
         from wfviz.io.outputs import write_atomically
