@@ -8,8 +8,8 @@ from pathlib import Path
 
 import pytest
 
-from wfviz.evaluate import (TruthError, evaluate, evaluate_points, format_table, frame_errors,
-                            read_points)
+from wfviz.evaluate import (EvalResult, TruthError, evaluate, evaluate_points, format_table, frame_errors,
+                            read_points, read_truth)
 
 # two targets moving across 10 frames, far apart (never within a gate of each other)
 TRUTH = {f: [(1, 10.0 + f, 20.0), (2, 80.0, 50.0 + 2 * f)] for f in range(10)}
@@ -190,3 +190,148 @@ def test_empty_files_are_zero_rows(tmp_path):
     r = evaluate_points({}, {})  # in memory (a run over frames without truth): zeros, no error
     assert (r.frames, r.truth_points, r.per_target) == (0, 0, ())
     assert json.dumps(r.to_dict(), allow_nan=False)
+
+
+# --- matching with extended targets: the truth's box (w, h) --------------------------------------
+
+# one 23 x 14 px target at (100, 50), as the Svanstrom helicopters: grown by 0.5 px a side, the box
+# holds |dx| <= 12, |dy| <= 7.5
+BOXED = """
+frame,target_id,x,y,w,h
+0,1,100,50,23,14
+1,1,100,50,23,14
+2,1,100,50,23,14
+3,1,100,50,23,14
+"""
+BOXED_TRACKS = """
+frame,track_id,x,y,confirmed
+0,5,108,50,1
+1,5,100,58,1
+2,5,112,57.5,1
+3,5,112.1,50,1
+"""
+
+
+def test_track_inside_the_truth_box_matches_beyond_the_gate(tmp_path):
+    truth, tracks = write(tmp_path / "truth.csv", BOXED), write(tmp_path / "tracks.csv", BOXED_TRACKS)
+    r = evaluate(tracks, truth)  # 8 px right: in the box; 8 px down: out; the grown corner: in; 12.1 px: out
+    assert (r.matches, r.misses, r.false_positives) == (2, 2, 2)
+    assert r.match_rule == "gate 3 px or inside the truth box (w,h) grown 0.5 px a side"
+    assert r.cle_mean == pytest.approx((8 + math.hypot(12, 7.5)) / 2)  # errors stay centre distances
+    assert format_table(r).splitlines()[0] == f"frames 4   truth points 4   {r.match_rule}"
+    gate_only = evaluate(tracks, truth, use_boxes=False)
+    assert (gate_only.matches, gate_only.false_positives, gate_only.match_rule) == (0, 4, "gate 3 px")
+    t = read_truth(truth)
+    assert t.boxes == {f: {1: (23.0, 14.0)} for f in range(4)}
+    assert frame_errors([(5, 108.0, 50.0)], t.shown[0], 3.0, (), t.boxes[0]).matches == ((5, 1, 8.0),)
+    assert frame_errors([(5, 100.0, 58.0)], t.shown[1], 3.0, (), t.boxes[1]).false_alarms == 1
+    assert frame_errors([(5, 108.0, 50.0)], t.shown[0], 3.0).matches == ()  # no boxes given: the gate
+
+
+def test_box_rule_still_assigns_by_distance_to_the_centre():
+    truth = {0: [(1, 100.0, 50.0), (2, 110.0, 50.0)]}
+    boxes = {0: {1: (23.0, 14.0), 2: (23.0, 14.0)}}
+    fe = frame_errors([(5, 107.0, 50.0)], truth[0], 3.0, (), boxes[0])  # in both boxes, 3 px from target 2
+    assert fe.matches == ((5, 2, 3.0),) and (fe.missed, fe.false_alarms) == (1, 0)
+    fe = frame_errors([(5, 101.0, 50.0), (6, 109.0, 50.0)], truth[0], 3.0, (), boxes[0])
+    assert sorted(fe.matches) == [(5, 1, 1.0), (6, 2, 1.0)]
+    r = evaluate_points({0: [(5, 101.0, 50.0), (6, 94.0, 50.0)]}, {0: truth[0][:1]}, 3.0, boxes=boxes)
+    assert (r.matches, r.false_positives, r.cle_mean) == (1, 1, 1.0)  # one target, one match: the nearer
+
+
+def test_box_of_a_hidden_target_ignores_a_track_inside_it(tmp_path):
+    truth = write(tmp_path / "truth.csv", """
+frame,target_id,x,y,visible,w,h
+0,1,100,50,1,23,14
+0,2,200,50,0,23,14
+1,1,100,50,1,,
+1,2,200,50,0,,
+""")
+    tracks = write(tmp_path / "tracks.csv", "frame,track_id,x,y\n0,6,208,50\n1,6,208,50\n")
+    r = evaluate(tracks, truth, all_rows=True)
+    assert (r.ignored, r.false_positives, r.misses) == (1, 1, 2)  # frame 1 has no box: a false alarm
+    assert "inside the truth box" in r.match_rule
+    assert evaluate(tracks, truth, all_rows=True, use_boxes=False).ignored == 0
+    t = read_truth(truth)
+    assert t.boxes == {0: {1: (23.0, 14.0), 2: (23.0, 14.0)}}
+    fe = frame_errors([(6, 208.0, 50.0)], t.shown[0], 3.0, t.hidden[0], t.boxes[0])
+    assert (fe.missed, fe.false_alarms) == (1, 0)
+
+
+def test_truth_without_boxes_scores_as_before(tmp_path):
+    rows = "".join(f"{f},1,{10 + f},20\n{f},2,80,{50 + 2 * f}\n" for f in range(10))
+    plain = write(tmp_path / "plain.csv", "frame,target_id,x,y\n" + rows)
+    empty = write(tmp_path / "empty.csv", "frame,target_id,x,y,w,h\n" + rows.replace("\n", ",,\n"))
+    tracks = write(tmp_path / "tracks.csv", "frame,track_id,x,y,confirmed\n" + "".join(
+        f"{f},{100 + i},{x + 2.5},{y},1\n" for f, pts in TRUTH.items() for i, x, y in pts))
+    a, b = evaluate(tracks, plain), evaluate(tracks, empty)  # w,h columns left empty: no boxes
+    assert a == b and a.match_rule == "gate 3 px" and read_truth(empty).boxes == {}
+    assert format_table(a).splitlines()[0] == "frames 10   truth points 20   gate 3 px"
+    assert a.to_dict() == evaluate_points(shifted(TRUTH, 2.5, 0), TRUTH).to_dict()
+    shown, hidden = read_truth(plain)  # still unpacks, and equals, as (visible, hidden)
+    assert (shown, hidden) == read_truth(plain) and shown == TRUTH and hidden == {}
+
+
+@pytest.mark.parametrize("text, message", [
+    ("frame,target_id,x,y,w,h\n0,1,10,10,5,\n", "truth.csv:2: column 'h': empty"),
+    ("frame,target_id,x,y,w,h\n0,1,10,10,-5,4\n", "truth.csv:2: column 'w': -5 is negative"),
+    ("frame,target_id,x,y,w,h\n0,1,10,10,5,big\n", "truth.csv:2: column 'h': 'big' is not a number"),
+])
+def test_bad_box_sizes_name_line_and_column(tmp_path, text, message):
+    with pytest.raises(TruthError) as err:
+        read_truth(write(tmp_path / "truth.csv", text))
+    assert str(err.value).startswith(message)
+
+
+def test_score_sink_and_frame_truth_use_the_boxes(tmp_path):
+    from types import SimpleNamespace
+
+    from wfviz.sinks import FrameTruth, RunEnd, ScoreSink, Step
+
+    truth = read_truth(write(tmp_path / "truth.csv", BOXED))
+    sink = ScoreSink(truth, 3.0)
+    steps = []
+    for f, (x, y) in enumerate([(108, 50), (100, 58), (112, 57.5), (112.1, 50)]):
+        track = SimpleNamespace(track_id=5, x=float(x), y=float(y), confirmed=True)
+        steps.append(Step(SimpleNamespace(index=f), (SimpleNamespace(tracks=[track]),), 0.0, 0.0))
+        sink.publish(steps[-1])
+    end = RunEnd(4, None)
+    sink.conclude(end)
+    per_frame = [s.facts.get(FrameTruth).errors.matches for s in steps]
+    assert per_frame == [((5, 1, 8.0),), (), ((5, 1, math.hypot(12, 7.5)),), ()]
+    assert end.facts.get(EvalResult).matches == 2 and "truth box" in end.facts.get(EvalResult).match_rule
+    plain = ScoreSink((truth.shown, truth.hidden), 3.0)  # a bare (shown, hidden) pair: the gate only
+    for s in steps:
+        plain.publish(Step(s.frame, s.results, 0.0, 0.0))
+    plain.conclude(RunEnd(4, None))
+    assert plain.scores is not None and (plain.scores.matches, plain.scores.match_rule) == (0, "gate 3 px")
+
+
+def test_cli_eval_prints_and_writes_the_rule_and_takes_no_boxes(tmp_path):
+    from typer.testing import CliRunner
+
+    from wfviz.cli import app
+
+    truth, tracks = write(tmp_path / "truth.csv", BOXED), write(tmp_path / "tracks.csv", BOXED_TRACKS)
+    out = tmp_path / "s.json"
+    r = CliRunner().invoke(app, ["eval", str(tracks), str(truth), "--json", str(out)])
+    assert r.exit_code == 0, r.output
+    assert "truth points 4   gate 3 px or inside the truth box (w,h) grown 0.5 px a side" in r.output
+    d = json.loads(out.read_text())
+    assert d["match_rule"].startswith("gate 3 px or inside the truth box") and d["matches"] == 2
+    r = CliRunner().invoke(app, ["eval", str(tracks), str(truth), "--json", str(out), "--no-boxes", "--gate", "8"])
+    assert r.exit_code == 0, r.output
+    d = json.loads(out.read_text())
+    assert (d["match_rule"], d["matches"], d["gate"]) == ("gate 8 px", 2, 8.0)  # 8 px right and 8 px down
+    assert r.output.splitlines()[0] == "frames 4   truth points 4   gate 8 px"
+
+
+def test_compare_disagreements_match_inside_the_box():
+    from wfviz.compare.differences import Disagreements
+
+    shown, boxes = [(1, 100.0, 50.0)], {1: (23.0, 14.0)}
+    runs = [[(5, 108.0, 50.0)], [(7, 100.0, 50.5)]]  # run a 8 px off but in the box, run b on the centre
+    cmp = Disagreements(["a", "b"], gate=3.0).update(0, runs, shown, (), boxes)
+    assert cmp.marks == () and [r.pd for r in cmp.runs] == [1.0, 1.0]
+    cmp = Disagreements(["a", "b"], gate=3.0).update(0, runs, shown, ())  # the gate only: a misses
+    assert [m.kind for m in cmp.marks] == ["missed", "false_track"] and cmp.runs[0].pd == 0.0

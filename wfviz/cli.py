@@ -457,6 +457,7 @@ def eval_(
     json_out: Annotated[Optional[Path], typer.Option("--json", help="Also write the scores (and with --explain, where Pd went under \"explain\") as JSON.")] = None,
     all_rows: Annotated[bool, typer.Option("--all-rows", help="Score every row as a confirmed track (for CSVs without a 'confirmed' column, or to include tentative tracks).")] = False,
     explain: Annotated[Optional[Path], typer.Option("--explain", help="An EXPLAIN.csv written by `record`/`track --explain`: print where Pd went (each cause's count and share in pipeline order, per target, and the false-track causes of <stem>-false.csv beside it). TRACKS and TRUTH may then be left out.", show_default=False)] = None,
+    no_boxes: Annotated[bool, typer.Option("--no-boxes", help="Match within --gate only, even when the truth has box sizes (w,h columns; by default a track inside the box matches too).")] = False,
 ) -> None:
     """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
     import json
@@ -478,7 +479,7 @@ def eval_(
                                          (false_path(explain) if explain else None, "the explain file")))
     data: dict = {}
     if tracks is not None and truth is not None:
-        result = evaluate(tracks, truth, gate=gate, all_rows=all_rows)
+        result = evaluate(tracks, truth, gate=gate, all_rows=all_rows, use_boxes=not no_boxes)
         out.print(format_table(result), highlight=False, markup=False)
         data = result.to_dict()
     if explain is not None:

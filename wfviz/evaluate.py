@@ -4,6 +4,11 @@ Hidden truth (rows with ``visible == 0``) is neither missed nor matchable. Like 
 "don't care" objects, a track point left unmatched by the visible targets that lies within the
 gate of a hidden target (one track per hidden target, optimal assignment) is ignored: it is
 neither a match nor a false alarm. Only frames in the truth's frame range are evaluated.
+
+Matching rule: a track point may match a truth point within ``gate`` px of its centre. When the
+truth has box sizes (``w``, ``h`` columns: a box centred on x, y), a point inside the box, grown
+by :data:`BOX_MARGIN` px a side, may match too; the assignment still minimises the distance to
+the centres. Hidden targets use the same rule. :attr:`EvalResult.match_rule` says which was used.
 """
 
 from __future__ import annotations
@@ -11,6 +16,7 @@ from __future__ import annotations
 import csv
 import math
 from collections import Counter, defaultdict
+from collections.abc import Mapping
 from dataclasses import asdict, dataclass
 from pathlib import Path
 from typing import Any, Sequence
@@ -20,6 +26,9 @@ from scipy.optimize import linear_sum_assignment
 
 Point = tuple[int, float, float]
 Points = dict[int, list[Point]]
+Box = tuple[float, float]  # (w, h) in px, centred on the truth point
+Boxes = dict[int, dict[int, Box]]  # {frame: {target_id: (w, h)}}
+BOX_MARGIN = 0.5  # px added to each side of a truth box: boxes are drawn on the pixel grid (±0.5 px)
 _NAN = float("nan")
 _TRUE, _FALSE = {"1", "1.0", "true", "True"}, {"0", "0.0", "false", "False"}
 SETTLE = 6  # pd_settled leaves out each target's first SETTLE visible frames (the paper's m = 6 hits)
@@ -27,6 +36,41 @@ SETTLE = 6  # pd_settled leaves out each target's first SETTLE visible frames (t
 
 class TruthError(ValueError):
     """Malformed tracks or truth CSV; the message names file, line and column."""
+
+
+class Truth(tuple[Points, Points]):
+    """Truth as the pair ``(shown, hidden)`` (visible and don't-care points, {frame: [(target_id,
+    x, y)]}), so it unpacks and compares like that tuple (boxes aside), plus ``boxes``: {frame:
+    {target_id: (w, h)}} of the points that have a box (empty: none)."""
+
+    boxes: Boxes
+
+    def __new__(cls, shown: Points, hidden: Points, boxes: Boxes | None = None) -> Truth:
+        self = super().__new__(cls, (shown, hidden))
+        self.boxes = boxes or {}
+        return self
+
+    def __getnewargs__(self) -> tuple[Points, Points, Boxes]:  # for pickle and copy
+        return self[0], self[1], self.boxes
+
+    @property
+    def shown(self) -> Points:
+        return self[0]
+
+    @property
+    def hidden(self) -> Points:
+        return self[1]
+
+    @classmethod
+    def of(cls, truth: tuple[Points, Points]) -> Truth:
+        """``truth`` itself when a Truth, else the pair without boxes."""
+        return truth if isinstance(truth, Truth) else cls(truth[0], truth[1])
+
+
+def describe_rule(gate: float, boxes: bool) -> str:
+    """The matching rule in words: ``gate 3 px``, or with ``boxes`` ``gate 3 px or inside the truth box ...``."""
+    rule = f"gate {gate:g} px"
+    return f"{rule} or inside the truth box (w,h) grown {BOX_MARGIN:g} px a side" if boxes else rule
 
 
 @dataclass(frozen=True)
@@ -85,6 +129,11 @@ class EvalResult:
     p_f: float
     per_target: tuple[TargetEval, ...]
     pd_settled: float = _NAN  # Pd without each target's first SETTLE visible frames
+    match_rule: str = ""  # describe_rule(); "" becomes the gate's ("gate 3 px")
+
+    def __post_init__(self) -> None:
+        if not self.match_rule:
+            object.__setattr__(self, "match_rule", describe_rule(self.gate, False))
 
     def to_dict(self) -> dict:
         """JSON-ready dict: floats, ints, lists; NaN becomes None."""
@@ -124,10 +173,13 @@ def _parse(text: str | None, where: str, col: str, kind: str) -> Any:
     raise TruthError(f"{where}: column {col!r}: {s!r} is not {what}" if s else f"{where}: column {col!r}: empty")
 
 
-def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = False) -> tuple[Points, Points]:
-    """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0.
+def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = False,
+          sizes: bool = False) -> Truth:
+    """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0;
+    with ``sizes`` and ``w``, ``h`` columns, the boxes of the rows where they are not empty.
     ``need_flag``: a missing ``flag`` column is an error. A UTF-8 byte-order mark is accepted."""
     name, shown, hidden, seen = Path(path).name, defaultdict(list), defaultdict(list), set()
+    boxes: Boxes = defaultdict(dict)
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
@@ -139,6 +191,7 @@ def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = 
                 raise TruthError(f"{name}:1: no {flag!r} column, so tentative tracks cannot be told from "
                                  f"confirmed ones (--all-rows scores every row as confirmed)")
             use_flag = flag is not None and flag in header
+            use_box = sizes and "w" in header and "h" in header
             for row in reader:
                 where = f"{name}:{reader.line_num}"
                 f, i, x, y = (_parse(row.get(c), where, c, k) for c, k in
@@ -150,11 +203,22 @@ def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = 
                 seen.add((f, i))
                 ok = _parse(row.get(flag), where, flag, "flag") if use_flag else True
                 (shown if ok else hidden)[f].append((i, x, y))
+                if use_box and ((row.get("w") or "").strip() or (row.get("h") or "").strip()):
+                    boxes[f][i] = _box(row, where)
     except UnicodeDecodeError as e:
         raise TruthError(f"{name}: not UTF-8 text ({e.reason})") from None
     except csv.Error as e:  # a field over csv.field_size_limit(), a NUL byte, ...
         raise TruthError(f"{name}:{reader.reader.line_num}: not a valid CSV line ({e})") from None
-    return dict(shown), dict(hidden)
+    return Truth(dict(shown), dict(hidden), dict(boxes))
+
+
+def _box(row: dict[str, str | None], where: str) -> Box:
+    """The row's (w, h), both numbers >= 0, else TruthError."""
+    w, h = (_parse(row.get(c), where, c, "float") for c in ("w", "h"))
+    for c, v in (("w", w), ("h", h)):
+        if v < 0:
+            raise TruthError(f"{where}: column {c!r}: {v:g} is negative (a box size)")
+    return w, h
 
 
 def read_points(path: Path, id_column: str, confirmed_only: bool = False) -> Points:
@@ -169,31 +233,57 @@ def _dist(a: Sequence[Point], b: Sequence[Point]) -> np.ndarray:
     return np.hypot(*np.moveaxis(pa[:, None, :] - pb[None, :, :], 2, 0))
 
 
-def _assign(a: Sequence[Point], b: Sequence[Point], gate: float) -> list[tuple[int, int, float]]:
-    """Optimal (most pairs, then least total distance) a-b pairing within ``gate``: (i, j, d)."""
+def _allowed(a: Sequence[Point], b: Sequence[Point], d: np.ndarray, gate: float,
+             sizes: Mapping[int, Box] | None) -> np.ndarray:
+    """Which truth ``a`` - point ``b`` pairs may match: distance ``d`` <= ``gate``, or ``b`` inside
+    the box of ``a`` (``sizes``: {target_id: (w, h)}) grown by BOX_MARGIN a side."""
+    ok = d <= gate
+    if sizes:
+        half = np.array([sizes.get(p[0], (_NAN, _NAN)) for p in a], float).reshape(-1, 2) / 2 + BOX_MARGIN
+        pa = np.array([p[1:] for p in a], float).reshape(-1, 2)
+        pb = np.array([p[1:] for p in b], float).reshape(-1, 2)
+        ok |= (np.abs(pb[None, :, :] - pa[:, None, :]) <= half[:, None, :]).all(axis=2)  # NaN: no box
+    return ok
+
+
+def matchable(target: Point, xy: np.ndarray, gate: float, box: Box | None = None) -> np.ndarray:
+    """Which points ``xy`` (N, 2) the scoring rule lets match truth point ``target`` (id, x, y)
+    with box ``box`` (w, h; None: none): :func:`_allowed`, the one rule."""
+    pts = [(0, float(x), float(y)) for x, y in np.asarray(xy, dtype=np.float64).reshape(-1, 2)]
+    if not pts:
+        return np.zeros(0, dtype=bool)
+    return _allowed([target], pts, _dist([target], pts), gate, {target[0]: box} if box else None)[0]
+
+
+def _assign(a: Sequence[Point], b: Sequence[Point], gate: float,
+            sizes: Mapping[int, Box] | None = None) -> list[tuple[int, int, float]]:
+    """Optimal (most pairs, then least total distance) a-b pairing of the pairs allowed by the
+    rule (:func:`_allowed`: within ``gate``, or inside a's box from ``sizes``): (i, j, d)."""
     if not a or not b:
         return []
     d = _dist(a, b)
-    rows, cols = linear_sum_assignment(np.where(d <= gate, d, 1e9))
-    return [(int(r), int(c), float(d[r, c])) for r, c in zip(rows, cols) if d[r, c] <= gate]
+    ok = _allowed(a, b, d, gate, sizes)
+    rows, cols = linear_sum_assignment(np.where(ok, d, 1e9))
+    return [(int(r), int(c), float(d[r, c])) for r, c in zip(rows, cols) if ok[r, c]]
 
 
 def _drop_hidden(tracks: Sequence[Point], truth: Sequence[Point], hidden: Sequence[Point],
-                 gate: float) -> list[Point]:
+                 gate: float, sizes: Mapping[int, Box] | None = None) -> list[Point]:
     """``tracks`` minus those on hidden targets (not used by the visible truth's assignment)."""
     if not hidden or not tracks:
         return list(tracks)
-    used = {j for _, j, _ in _assign(truth, tracks, gate)}
+    used = {j for _, j, _ in _assign(truth, tracks, gate, sizes)}
     free = [j for j in range(len(tracks)) if j not in used]
-    on_hidden = {free[j] for _, j, _ in _assign(hidden, [tracks[j] for j in free], gate)}
+    on_hidden = {free[j] for _, j, _ in _assign(hidden, [tracks[j] for j in free], gate, sizes)}
     return [t for j, t in enumerate(tracks) if j not in on_hidden]
 
 
 def frame_errors(track_pts: Sequence[Point], truth_pts: Sequence[Point], gate: float = 3.0,
-                 hidden: Sequence[Point] = ()) -> FrameErrors:
-    """Errors of one frame: optimal assignment of (id, x, y) tracks to truth within ``gate`` px."""
-    tracks = _drop_hidden(track_pts, truth_pts, hidden, gate)
-    pairs = _assign(truth_pts, tracks, gate)
+                 hidden: Sequence[Point] = (), boxes: Mapping[int, Box] | None = None) -> FrameErrors:
+    """Errors of one frame: optimal assignment of (id, x, y) tracks to truth within ``gate`` px,
+    or inside the truth's box when ``boxes`` ({target_id: (w, h)}, the frame's) has one."""
+    tracks = _drop_hidden(track_pts, truth_pts, hidden, gate, boxes)
+    pairs = _assign(truth_pts, tracks, gate, boxes)
     matches = tuple((tracks[j][0], truth_pts[i][0], d) for i, j, d in pairs)
     cle = float(np.mean([d for *_, d in matches])) if matches else _NAN
     return FrameErrors(cle, len(truth_pts) - len(pairs), len(tracks) - len(pairs), matches)
@@ -218,7 +308,7 @@ def score_targets(tracks: Points, truth: Points, gate: float = 3.0) -> list[Targ
     return out
 
 
-def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> EvalResult:
+def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes: Boxes) -> EvalResult:
     """Feed every frame of the truth's range to a motmetrics accumulator and summarise."""
     import motmetrics as mm  # pandas-heavy: import only when evaluating
 
@@ -229,12 +319,13 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> Eva
     # only frames with points: the others add no event, so the cost follows the rows, not the span
     busy = sorted({f for f in (*truth, *hidden, *tracks) if f in frames})
     for f in busy:
-        gt, tr = truth.get(f, []), tracks.get(f, [])
-        kept = _drop_hidden(tr, gt, hidden.get(f, []), gate)
+        gt, tr, sizes = truth.get(f, []), tracks.get(f, []), boxes.get(f)
+        kept = _drop_hidden(tr, gt, hidden.get(f, []), gate, sizes)
         ignored += len(tr) - len(kept)
         # Own Euclidean matrix (not norm2squared_matrix, which returns squared distances): NaN = no pair.
         d = _dist(gt, kept)
-        acc.update([p[0] for p in gt], [p[0] for p in kept], np.where(d <= gate, d, np.nan), frameid=f)
+        ok = _allowed(gt, kept, d, gate, sizes)
+        acc.update([p[0] for p in gt], [p[0] for p in kept], np.where(ok, d, np.nan), frameid=f)
     s = mm.metrics.create().compute(acc, name="all", metrics=[
         "num_detections", "num_misses", "num_false_positives", "num_switches",
         "num_fragmentations", "mota", "motp", "idf1", "num_objects"]).iloc[0]
@@ -272,30 +363,34 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float) -> Eva
         fa_per_frame=fp / len(frames) if frames else _NAN,
         latency_mean=float(np.mean(lat)) if lat else _NAN,
         p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per),
-        pd_settled=settled_m / settled_n if settled_n else _NAN)
+        pd_settled=settled_m / settled_n if settled_n else _NAN,
+        match_rule=describe_rule(gate, any(boxes.get(f) for f in busy)))
 
 
-def read_truth(path: Path | str) -> tuple[Points, Points]:
-    """Truth CSV as (visible points, hidden points), each {frame: [(target_id, x, y)]}."""
-    return _read(path, "target_id", "visible")
+def read_truth(path: Path | str) -> Truth:
+    """Truth CSV as (visible points, hidden points), each {frame: [(target_id, x, y)]}, with the
+    boxes (``w``, ``h`` columns; a row with both empty has none) as ``.boxes``."""
+    return _read(path, "target_id", "visible", sizes=True)
 
 
 def evaluate_points(tracks: Points, truth: Points, gate: float = 3.0,
-                    hidden: Points | None = None) -> EvalResult:
-    """Score {frame: [(track_id, x, y)]} tracks against {frame: [(target_id, x, y)]} truth."""
-    return _evaluate(tracks, truth, hidden or {}, gate)
+                    hidden: Points | None = None, boxes: Boxes | None = None) -> EvalResult:
+    """Score {frame: [(track_id, x, y)]} tracks against {frame: [(target_id, x, y)]} truth
+    (``boxes``: {frame: {target_id: (w, h)}}, matched within the gate or inside the box)."""
+    return _evaluate(tracks, truth, hidden or {}, gate, boxes or {})
 
 
-def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows: bool = False) -> EvalResult:
+def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows: bool = False,
+             use_boxes: bool = True) -> EvalResult:
     """Score a tracks CSV (``confirmed == 1`` rows; every row with ``all_rows``, and a file
-    without a ``confirmed`` column only then) against a truth CSV (``visible == 1`` rows).
-    A truth file without any row is an error."""
-    shown, hidden = read_truth(truth)
-    if not shown and not hidden:
+    without a ``confirmed`` column only then) against a truth CSV (``visible == 1`` rows),
+    with its boxes unless not ``use_boxes``. A truth file without any row is an error."""
+    t = read_truth(truth)
+    if not t.shown and not t.hidden:
         raise TruthError(f"{Path(truth).name}: no truth rows (only a header, or empty)")
     track_pts = (_read(tracks, "track_id", None) if all_rows
                  else _read(tracks, "track_id", "confirmed", need_flag=True))[0]
-    return _evaluate(track_pts, shown, hidden, gate)
+    return _evaluate(track_pts, t.shown, t.hidden, gate, t.boxes if use_boxes else {})
 
 
 def format_table(result: EvalResult) -> str:
@@ -305,7 +400,7 @@ def format_table(result: EvalResult) -> str:
 
     r = result
     lines = [
-        f"frames {r.frames}   truth points {r.truth_points}   gate {r.gate:g} px",
+        f"frames {r.frames}   truth points {r.truth_points}   {r.match_rule}",
         f"MOTA {num(r.mota)}   MOTP {num(r.motp)} px   IDF1 {num(r.idf1)}",
         f"matches {r.matches}   misses {r.misses}   false positives {r.false_positives}"
         f"   ignored (hidden) {r.ignored}   ID switches {r.id_switches}   fragmentations {r.fragmentations}",

@@ -23,6 +23,7 @@ from typing import Any, Protocol, TypeVar
 import numpy as np
 
 from wfviz.evaluate import EvalResult, FrameErrors, Point, Points, evaluate_points, format_table, frame_errors
+from wfviz.evaluate import Box, Truth
 from wfviz.io.frames import Clip, Frame
 from wfviz.io.outputs import OutputError, TextOutput, replace_into, temp_path
 from wfviz.record_options import RecorderOptions
@@ -158,23 +159,27 @@ class TracksSink(BaseSink):
 class FrameTruth:
     """Run ``run``'s confirmed tracks on a frame against the frame's truth: the visible and
     hidden targets, and (computed when first asked) the frame's errors, matched as the scores
-    match them (:func:`wfviz.evaluate.frame_errors`). Published by :class:`ScoreSink`."""
+    match them (:func:`wfviz.evaluate.frame_errors`, with the targets' ``boxes`` {target_id:
+    (w, h)} when the truth has them). Published by :class:`ScoreSink`."""
 
-    def __init__(self, shown: list[Point], hidden: list[Point], points: list[Point], gate: float) -> None:
+    def __init__(self, shown: list[Point], hidden: list[Point], points: list[Point], gate: float,
+                 boxes: dict[int, Box] | None = None) -> None:
         self.shown, self.hidden, self.points, self.gate = shown, hidden, points, gate
+        self.boxes = boxes
 
     @cached_property
     def errors(self) -> FrameErrors:
-        return frame_errors(self.points, self.shown, self.gate, self.hidden)
+        return frame_errors(self.points, self.shown, self.gate, self.hidden, self.boxes)
 
 
 class ScoreSink(BaseSink):
-    """Scores of run ``run`` against truth (visible, hidden points) over the frames processed:
-    publishes each frame's :class:`FrameTruth` and, at the end, the :class:`EvalResult`
-    (``scores`` is set then too)."""
+    """Scores of run ``run`` against truth (visible, hidden points; a :class:`~wfviz.evaluate.Truth`
+    brings its boxes) over the frames processed: publishes each frame's :class:`FrameTruth` and,
+    at the end, the :class:`EvalResult` (``scores`` is set then too)."""
 
     def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0) -> None:
         self.shown, self.hidden = truth
+        self.boxes = Truth.of(truth).boxes
         self.gate = gate
         self.run = run
         self.tracked: Points = {}
@@ -184,13 +189,15 @@ class ScoreSink(BaseSink):
         f = step.frame.index
         points = confirmed_points(step.results[self.run])
         self.tracked[f] = points
-        step.facts.put(FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), points, self.gate), self.run)
+        step.facts.put(FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), points, self.gate,
+                                  self.boxes.get(f)), self.run)
 
     def conclude(self, end: RunEnd) -> None:
         if self.tracked:
             span = set(self.tracked)
             self.scores = evaluate_points(self.tracked, {f: v for f, v in self.shown.items() if f in span},
-                                          self.gate, {f: v for f, v in self.hidden.items() if f in span})
+                                          self.gate, {f: v for f, v in self.hidden.items() if f in span},
+                                          self.boxes)
             end.facts.put(self.scores, self.run)
 
 

@@ -1,8 +1,8 @@
 """Where the runs of ``wfviz compare`` disagree, frame by frame.
 
 With truth, each run's confirmed tracks are matched to the visible targets as the scores match
-them (:func:`wfviz.evaluate.frame_errors`: optimal assignment within the gate, tracks on hidden
-targets left out). A frame disagrees where
+them (:func:`wfviz.evaluate.frame_errors`: optimal assignment within the gate or inside the
+target's box when the truth has one, tracks on hidden targets left out). A frame disagrees where
 
 - ``missed``: a target is matched by some runs and missed by the others;
 - ``false_track``: a false track (a confirmed track matched to no target) that not every run
@@ -17,12 +17,12 @@ be told (:attr:`FrameComparison.began`, :attr:`FrameComparison.ended`)."""
 from __future__ import annotations
 
 import math
-from collections.abc import Sequence
+from collections.abc import Mapping, Sequence
 from dataclasses import dataclass
 
 import numpy as np
 
-from wfviz.evaluate import Point, _assign, _drop_hidden
+from wfviz.evaluate import Box, Point, _assign, _drop_hidden
 
 KINDS = ("missed", "false_track", "switch", "unmatched")
 
@@ -94,29 +94,29 @@ class Disagreements:
         self._active: dict[tuple, Mark] = {}
 
     def update(self, frame: int, points: Sequence[Sequence[Point]], shown: Sequence[Point] | None = None,
-               hidden: Sequence[Point] = ()) -> FrameComparison:
+               hidden: Sequence[Point] = (), boxes: Mapping[int, Box] | None = None) -> FrameComparison:
         """``points``: every run's confirmed (track_id, x, y); ``shown``/``hidden``: the visible
-        and don't-care targets of the frame (None: no truth)."""
+        and don't-care targets of the frame (None: no truth); ``boxes``: their {target_id: (w, h)}."""
         if shown is None:
             marks, runs = self._without_truth(points)
         else:
-            marks, runs = self._with_truth(points, shown, hidden)
+            marks, runs = self._with_truth(points, shown, hidden, boxes)
         now = {m.key: m for m in marks}
         began = tuple(m for m in marks if m.key not in self._active)
         ended = tuple(m for k, m in self._active.items() if k not in now and m.kind != "switch")
         self._active = now
         return FrameComparison(frame, tuple(marks), began, ended, tuple(runs))
 
-    def _with_truth(self, points: Sequence[Sequence[Point]], shown: Sequence[Point],
-                    hidden: Sequence[Point]) -> tuple[list[Mark], list[RunFrame]]:
+    def _with_truth(self, points: Sequence[Sequence[Point]], shown: Sequence[Point], hidden: Sequence[Point],
+                    boxes: Mapping[int, Box] | None = None) -> tuple[list[Mark], list[RunFrame]]:
         n, g = len(self.labels), self.gate
         matched: list[dict[int, int]] = []
         false: list[list[Point]] = []
         runs = []
         switched: dict[int, list[tuple[int, int, int]]] = {}
         for r, pts in enumerate(points):
-            kept = _drop_hidden(list(pts), list(shown), list(hidden), g)
-            pairs = _assign(list(shown), kept, g)
+            kept = _drop_hidden(list(pts), list(shown), list(hidden), g, boxes)
+            pairs = _assign(list(shown), kept, g, boxes)
             m = {shown[i][0]: kept[j][0] for i, j, _ in pairs}
             used = {j for _, j, _ in pairs}
             false.append([p for j, p in enumerate(kept) if j not in used])

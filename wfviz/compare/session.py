@@ -15,7 +15,7 @@ from pathlib import Path
 from wfviz.compare.differences import KINDS, Disagreements
 from wfviz.compare.runs import RunGroup, RunSpec, check_labels, make_trackers
 from wfviz.compare.summary import CompareSummary, Comparison, summarize
-from wfviz.evaluate import Points
+from wfviz.evaluate import Points, Truth
 from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip
 from wfviz.io.outputs import check_writable
@@ -30,7 +30,7 @@ class DisagreementSink(BaseSink):
 
     def __init__(self, labels: list[str], gate: float, truth: tuple[Points, Points] | None) -> None:
         self.diff = Disagreements(labels, gate)
-        self.truth = truth
+        self.truth = Truth.of(truth) if truth is not None else None
         self.ms_total = [0.0] * len(labels)
         self.confirmed: list[set[int]] = [set() for _ in labels]
         self.marks = dict.fromkeys(KINDS, 0)
@@ -43,7 +43,8 @@ class DisagreementSink(BaseSink):
             self.confirmed[i] |= result.confirmed_ids
         points = [confirmed_points(r) for r in step.results]
         if self.truth is not None:
-            cmp = self.diff.update(f, points, self.truth[0].get(f, []), self.truth[1].get(f, []))
+            cmp = self.diff.update(f, points, self.truth.shown.get(f, []), self.truth.hidden.get(f, []),
+                                   self.truth.boxes.get(f))
         else:
             cmp = self.diff.update(f, points, None, ())
         self.disagreeing += bool(cmp.marks)

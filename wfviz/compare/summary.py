@@ -85,5 +85,6 @@ def format_summary(summary: CompareSummary) -> str:
     line = lambda cells: "  ".join(c.ljust(w) if k < 2 else c.rjust(w)  # noqa: E731
                                    for k, (c, w) in enumerate(zip(cells, widths)))
     kinds = ", ".join(f"{k} {n}" for k, n in summary.marks.items() if n) or "none"
-    return "\n".join([line(head), *map(line, rows),
+    rules = sorted({r.scores.match_rule for r in summary.runs if r.scores is not None})
+    return "\n".join([line(head), *map(line, rows), *(f"matched to truth: {rule}" for rule in rules),
                       f"frames with a disagreement: {summary.disagreement_frames} of {summary.frames} ({kinds})"])

@@ -7,7 +7,7 @@ from __future__ import annotations
 from pathlib import Path
 from typing import Any
 
-from wfviz.evaluate import Points
+from wfviz.evaluate import Points, Truth
 from wfviz.explain.false_tracks import FalseCauses
 from wfviz.explain.report import ExplainSummary, ExplainWriter, summarise
 from wfviz.explain.truth import TruthCauses
@@ -25,6 +25,7 @@ class ExplainSink(BaseSink):
     def __init__(self, truth: tuple[Points, Points], gate: float, tracker: str, config: Any,
                  path: Path | None = None, run: int = 0) -> None:
         self.shown, self.hidden = truth
+        self.boxes = Truth.of(truth).boxes
         self.gate, self.run = gate, run
         self.truth_causes = TruthCauses(tracker, config, gate)
         self.false_causes = FalseCauses(gate)
@@ -35,9 +36,10 @@ class ExplainSink(BaseSink):
     def publish(self, step: Step) -> None:
         f = step.frame.index
         result = step.results[self.run]
-        ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate)
+        boxes = self.boxes.get(f)
+        ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate, boxes)
         matches = ft.errors.matches
-        truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches)
+        truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches, boxes)
         false = self.false_causes.explain(result, ft.shown, ft.hidden, matches)
         self.rows += [(e.target_id, e.cause.value) for e in truth]
         self.false += [e.cause.value for e in false]

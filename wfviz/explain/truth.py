@@ -14,10 +14,12 @@ from __future__ import annotations
 
 import math
 from dataclasses import dataclass
+from collections.abc import Mapping
 from typing import Any
 
 import numpy as np
 
+from wfviz.evaluate import Box, matchable
 from wfviz.explain.types import Cause, TruthExplanation
 from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEndResult
@@ -89,11 +91,21 @@ class TruthCauses:
         self.margin = float(getattr(hor, "margin", 0.0))
         self._owner: dict[int, tuple[int, int]] = {}     # target -> (track that matched it, last frame)
         self._deleted: dict[int, tuple[int, str]] = {}   # track -> (frame, the deletion's message)
+        self._boxes: Mapping[int, Box] = {}
+
+    def near(self, target: Point, xy: np.ndarray) -> np.ndarray:
+        """Which points ``xy`` (N, 2) lie "within the gate" of ``target``: the scorer's rule
+        (:func:`wfviz.evaluate.matchable`, with the target's box when the truth has one)."""
+        return matchable(target, xy, self.gate, self._boxes.get(target[0]))
 
     def explain(self, result: FrameResult, shown: list[Point], hidden: list[Point],
-                matches: tuple[tuple[int, int, float], ...]) -> tuple[TruthExplanation, ...]:
+                matches: tuple[tuple[int, int, float], ...],
+                boxes: Mapping[int, Box] | None = None) -> tuple[TruthExplanation, ...]:
         """The cause of every point of ``shown`` (visible) and ``hidden`` truth in ``result``'s
-        frame; ``matches``: the scorer's (track_id, target_id, distance) of the frame."""
+        frame; ``matches``: the scorer's (track_id, target_id, distance) of the frame; ``boxes``:
+        the targets' {target_id: (w, h)} when the truth has them ("within the gate" is then the
+        scorer's rule: within the gate of the centre or inside the box)."""
+        self._boxes = boxes or {}
         f = result.index
         for e in result.events:
             if e.kind == EventKind.DELETED:
@@ -129,7 +141,7 @@ class TruthCauses:
             return say(Cause.OUTSIDE_CIRCLE, "outside the frame")
         if front is not None and not front.valid[r, c]:
             return say(Cause.OUTSIDE_CIRCLE, "outside the imaging circle (or the frame's border)")
-        near = d <= self.gate
+        near = self.near((tid, x, y), dets.xy) if len(dets) else np.zeros(0, dtype=bool)
         if front is not None and not front.region[r, c] and not near.any():
             return say(Cause.OUTSIDE_REGION, self._region_detail(result, front, x, y))
         if not near.any():
@@ -137,7 +149,8 @@ class TruthCauses:
         lost = self._lost(result, tid, x, y)
         if lost is not None:
             return say(Cause.LOST, *lost)
-        tracks = [t for t in result.tracks if math.hypot(t.x - x, t.y - y) <= self.gate]
+        live = result.tracks
+        tracks = [t for t, ok in zip(live, self.near((tid, x, y), np.array([[t.x, t.y] for t in live])).tolist()) if ok]
         tentative = sorted((t for t in tracks if not t.confirmed), key=lambda t: math.hypot(t.x - x, t.y - y))
         if tentative:
             t = tentative[0]
@@ -157,7 +170,7 @@ class TruthCauses:
             whom = f"target {other[0]}" if other else "a hidden target"
             return say(Cause.NOT_ASSOCIATED, f"confirmed track {t.track_id} within the gate is matched to {whom}",
                        t.track_id)
-        j = int(np.argmin(d))
+        j = int(np.argmin(np.where(near, d, np.inf)))
         return say(Cause.NOT_ASSOCIATED, *self._unassociated(result, dets, j, x, y))
 
     def _region_detail(self, result: FrameResult, front: FrontEndResult, x: float, y: float) -> str:
@@ -224,7 +237,7 @@ class TruthCauses:
         t = live.get(track)
         if t is not None and t.confirmed:
             dist = math.hypot(t.x - x, t.y - y)
-            if dist <= self.gate:
+            if self.near((tid, x, y), np.array([[t.x, t.y]]))[0]:
                 return None  # on it, but the scorer gave it another target (not_associated)
             return f"its track {track} (matched until frame {since}) is {dist:.1f} px off it", track
         if t is None and track in self._deleted:

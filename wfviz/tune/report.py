@@ -174,7 +174,8 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
           + ("" if val_clips else " (give `--validate CLIP` for an honest check; see below)"),
           f"- trials: {len(done)} completed, {len(failed)} failed; seed {settings.seed}, "
           f"{settings.workers} at a time; frames "
-          + (f"0–{settings.stop - 1}" if settings.stop else "all") + f"; match gate {settings.gate:g} px",
+          + (f"0–{settings.stop - 1}" if settings.stop else "all") + f"; match gate {settings.gate:g} px"
+          + " (or inside the truth's box where it has w,h)",
           f"- objective: {' and '.join(f'{d} {m}' for m, d in zip(metrics, directions))}, averaged over the tune clips"
           + ("; the validation clips are scored in every trial and never used to choose" if val_clips else ""),
           ""]

@@ -1,0 +1,116 @@
+"""Where Pd went on every independent sample and real sequence in ../shared (default GEWC
+tracker, or ``--tracker``): each clip's cause counts, its dominant miss cause and false-track
+causes, and a check of the explanation against the outputs on every clip:
+
+- every truth point has exactly one cause; ``matched`` equals the scorer's matches;
+- ``not_detected`` has no detection within the gate (its ``det_dist`` is beyond it or empty);
+- ``latency`` / ``not_confirmed`` have a tentative track row within the gate, the one named.
+
+    python benchmarks/explain_causes.py                    # markdown table on stdout
+    python benchmarks/explain_causes.py --groups real --jobs 2
+"""
+
+from __future__ import annotations
+
+import argparse
+import csv
+import math
+import sys
+import tempfile
+import warnings
+from collections import Counter
+from concurrent.futures import ProcessPoolExecutor
+from pathlib import Path
+
+SHARED = Path(__file__).resolve().parents[1].parent / "shared" / "data"
+MISS_ORDER = ("outside_circle", "outside_region", "not_detected", "lost", "not_associated", "latency",
+              "not_confirmed")
+
+
+def clips(groups: list[str]) -> list[tuple[str, str]]:
+    """(clip, truth CSV) of the groups."""
+    out: list[tuple[str, str]] = []
+    if "independent" in groups:
+        out += [(str(p / "frames"), str(p / "truth.csv")) for p in sorted((SHARED / "independent").glob("S*"))]
+    if "real" in groups:
+        out += [(str(p.parent), str(p)) for p in sorted((SHARED / "real").glob("*/*/truth.csv"))]
+    return out
+
+
+def _rows(path: Path) -> list[dict[str, str]]:
+    with open(path, newline="") as fh:
+        return list(csv.DictReader(fh))
+
+
+def one(job: tuple[str, str, str, float]) -> dict:
+    """Run ``tracker`` on ``clip`` with truth and --explain; the counts and the checks."""
+    tracker, clip, truth, gate = job
+    import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
+    from wfviz.evaluate import read_truth
+    from wfviz.io.clip import open_clip
+    from wfviz.run import run
+    from wfviz.trackers import make_tracker
+
+    warnings.simplefilter("ignore")
+    label = clip.replace(str(SHARED) + "/", "").removesuffix("/frames")
+    with tempfile.TemporaryDirectory() as tmp:
+        t, e = Path(tmp) / "t.csv", Path(tmp) / "e.csv"
+        summary = run(open_clip(clip), make_tracker(tracker, None), tracks_csv=t, truth=read_truth(truth),
+                      gate=gate, explain=e)
+        ex, false = _rows(e), _rows(Path(tmp) / "e-false.csv")
+        tracks: dict[int, list[dict[str, str]]] = {}
+        for r in _rows(t):
+            tracks.setdefault(int(r["frame"]), []).append(r)
+    problems = []
+    n = Counter(r["cause"] for r in ex)
+    scores = summary.scores
+    if scores is not None and n["matched"] != scores.matches:
+        problems.append(f"matched {n['matched']} != scorer's {scores.matches}")
+    for r in ex:
+        x, y, f = float(r["x"]), float(r["y"]), int(r["frame"])
+        if r["cause"] == "not_detected" and r["det_dist"] and float(r["det_dist"]) <= gate:
+            problems.append(f"frame {f}: not_detected with a detection {r['det_dist']} px away")
+        if r["cause"] in ("latency", "not_confirmed"):
+            near = [t for t in tracks.get(f, []) if t["confirmed"] == "0" and t["track_id"] == r["track_id"]
+                    and math.hypot(float(t["x"]) - x, float(t["y"]) - y) <= gate]
+            if not near:
+                problems.append(f"frame {f}: {r['cause']} without its tentative track within the gate")
+    visible = sum(v for k, v in n.items() if k != "hidden")
+    misses = {k: n[k] for k in MISS_ORDER if n[k]}
+    return {"clip": label, "visible": visible, "matched": n["matched"], "causes": dict(n),
+            "dominant": max(misses, key=lambda k: misses[k]) if misses else "-",
+            "false": dict(Counter(r["cause"] for r in false)), "problems": problems,
+            "pd": scores.pd if scores is not None else math.nan}
+
+
+def main() -> None:
+    ap = argparse.ArgumentParser(description=__doc__, formatter_class=argparse.RawDescriptionHelpFormatter)
+    ap.add_argument("--tracker", default="gewc")
+    ap.add_argument("--groups", nargs="+", default=["independent", "real"], choices=["independent", "real"])
+    ap.add_argument("--gate", type=float, default=3.0)
+    ap.add_argument("--jobs", type=int, default=1)
+    a = ap.parse_args()
+    jobs = [(a.tracker, c, t, a.gate) for c, t in clips(a.groups)]
+    with ProcessPoolExecutor(a.jobs) as pool:
+        results = list(pool.map(one, jobs))
+    head = ["clip", "visible", "Pd", *(c.replace("_", " ") for c in MISS_ORDER), "dominant", "false-track rows"]
+    print("| " + " | ".join(head) + " |")
+    print("|" + "---|" * len(head))
+    total: Counter = Counter()
+    bad = 0
+    for r in results:
+        total.update({k: v for k, v in r["causes"].items() if k != "hidden"})
+        false = ", ".join(f"{k} {v}" for k, v in sorted(r["false"].items(), key=lambda kv: -kv[1])) or "0"
+        print(f"| {r['clip']} | {r['visible']} | {r['pd']:.3f} | "
+              + " | ".join(str(r["causes"].get(c, 0)) for c in MISS_ORDER) + f" | {r['dominant']} | {false} |")
+        for p in r["problems"]:
+            bad += 1
+            print(f"  PROBLEM {r['clip']}: {p}", file=sys.stderr)
+    v = sum(total.values())
+    print(f"\nall clips: {v} visible truth points, " + ", ".join(
+        f"{c} {100 * total[c] / max(v, 1):.1f} %" for c in ("matched", *MISS_ORDER)))
+    print(f"consistency problems: {bad}")
+
+
+if __name__ == "__main__":
+    main()
