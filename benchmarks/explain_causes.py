@@ -46,7 +46,7 @@ def one(job: tuple[str, str, str, float]) -> dict:
     """Run ``tracker`` on ``clip`` with truth and --explain; the counts and the checks."""
     tracker, clip, truth, gate = job
     import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
-    from wfviz.evaluate import read_truth
+    from wfviz.evaluate import matchable, read_truth
     from wfviz.io.clip import open_clip
     from wfviz.run import run
     from wfviz.trackers import make_tracker
@@ -55,7 +55,8 @@ def one(job: tuple[str, str, str, float]) -> dict:
     label = clip.replace(str(SHARED) + "/", "").removesuffix("/frames")
     with tempfile.TemporaryDirectory() as tmp:
         t, e = Path(tmp) / "t.csv", Path(tmp) / "e.csv"
-        summary = run(open_clip(clip), make_tracker(tracker, None), tracks_csv=t, truth=read_truth(truth),
+        truth_points = read_truth(truth)
+        summary = run(open_clip(clip), make_tracker(tracker, None), tracks_csv=t, truth=truth_points,
                       gate=gate, explain=e)
         ex, false = _rows(e), _rows(Path(tmp) / "e-false.csv")
         tracks: dict[int, list[dict[str, str]]] = {}
@@ -71,9 +72,10 @@ def one(job: tuple[str, str, str, float]) -> dict:
         if r["cause"] == "not_detected" and r["det_dist"] and float(r["det_dist"]) <= gate:
             problems.append(f"frame {f}: not_detected with a detection {r['det_dist']} px away")
         if r["cause"] in ("latency", "not_confirmed"):
-            near = [t for t in tracks.get(f, []) if t["confirmed"] == "0" and t["track_id"] == r["track_id"]
-                    and math.hypot(float(t["x"]) - x, float(t["y"]) - y) <= gate]
-            if not near:
+            box = truth_points.boxes.get(f, {}).get(int(r["target_id"]))
+            own = [t for t in tracks.get(f, []) if t["confirmed"] == "0" and t["track_id"] == r["track_id"]]
+            xy = [[float(t["x"]), float(t["y"])] for t in own]
+            if not matchable((int(r["target_id"]), x, y), xy, gate, box).any():
                 problems.append(f"frame {f}: {r['cause']} without its tentative track within the gate")
     visible = sum(v for k, v in n.items() if k != "hidden")
     misses = {k: n[k] for k in MISS_ORDER if n[k]}

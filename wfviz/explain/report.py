@@ -55,7 +55,7 @@ class ExplainWriter:
     def write(self, truth: Iterable[TruthExplanation], false: Iterable[FalseExplanation]) -> None:
         """Append one frame's rows."""
         self.truth.write("".join(
-            f"{e.frame},{e.target_id},{e.cause.value},{_text(e.detail)},{_num(e.significance)},{_num(e.det_dist)},"
+            f"{e.frame},{e.target_id},{e.cause.value},{_text(e.detail)},{_num(e.significance)},{_num(e.det_dist, '.3f')},"
             f"{'' if e.track_id is None else e.track_id},{e.x:.3f},{e.y:.3f},{_num(e.residual)},{_num(e.change)},"
             f"{_num(e.threshold)}\r\n" for e in truth))
         self.false.write("".join(f"{e.frame},{e.track_id},{e.cause.value},{_text(e.detail)},{e.x:.3f},{e.y:.3f}\r\n"
