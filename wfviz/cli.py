@@ -500,24 +500,28 @@ def eval_(
 def screenshot(
     recording: Annotated[Path, typer.Argument(help="Recording (.rrd) to render.")],
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
-    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show, within the recording's frames (default: last).")] = None,
-    width: Annotated[int, typer.Option("--width", min=200, help="Image width in pixels.")] = 1600,
-    height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels.")] = 1000,
+    frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (a time on --timeline), within the recording's range (default: its last).")] = None,
+    frames: Annotated[Optional[str], typer.Option("--frames", metavar="A,B,C", help="Several frames in one PNG, one viewer for all: a panel per frame, labelled with its number, side by side (a grid beyond 3; at most 16).", show_default=False)] = None,
+    timeline: Annotated[str, typer.Option("--timeline", help="Sequence timeline the frames are on, e.g. trial for the study.rrd of `wfviz tune`.")] = "frame",
+    around: Annotated[Optional[str], typer.Option("--around", metavar="X,Y", help="Crop the 2D (camera) views around this image point: x = column, y = row, origin at the centre of the top-left pixel.", show_default=False)] = None,
+    target: Annotated[Optional[int], typer.Option("--target", metavar="ID", help="Crop around truth target ID where it is in each frame shown (camera/truth: recorded with --truth, always by `wfviz demo`).", show_default=False)] = None,
+    track: Annotated[Optional[int], typer.Option("--track", metavar="ID", help="Crop around confirmed track ID where it is in each frame shown (the end of its trail, camera/tracks).", show_default=False)] = None,
+    zoom: Annotated[Optional[float], typer.Option("--zoom", metavar="Z", help="Zoom of the crop: the 2D views show (at least) width/Z by height/Z image pixels. Default 4.", show_default=False)] = None,
+    width: Annotated[int, typer.Option("--width", min=200, help="Image width in pixels (of each panel with --frames).")] = 1600,
+    height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels (of each panel with --frames).")] = 1000,
 ) -> None:
-    """Render a recording in the real Rerun viewer, headless, with its default blueprint."""
-    from wfviz.record.screenshot import ScreenshotError, frame_range, render_screenshot
+    """Render a recording in the real Rerun viewer, headless, with its default blueprint: one frame, or several side by side, the camera views optionally zoomed around a point, a truth target or a track."""
+    from wfviz.record.screenshot import ScreenshotError, plan_shots, render_shots
 
     if not recording.is_file():
         raise ValueError(f"{recording}: no such recording")
     if output.is_dir():
         raise OutputError(f"{output}: is a folder, expected a PNG file name")
     _guard_outputs(output, inputs=((recording, "the recording"),))
-    if frame is not None:
-        span = frame_range(recording)
-        if span is not None and not span[0] <= frame <= span[1]:
-            raise ValueError(f"--frame {frame}: {recording} holds frames {span[0]}-{span[1]}")
+    shots = plan_shots(recording, frame=frame, frames=frames, timeline=timeline, around=around, target=target,
+                       track=track, zoom=zoom)
     try:
-        render_screenshot(recording, output, frame=frame, width=width, height=height)
+        render_shots(recording, output, shots, timeline=timeline, width=width, height=height)
     except ScreenshotError as exc:
         raise ValueError(f"{recording}: {exc}") from None
     out.print(f"screenshot: {output}", highlight=False, markup=False)
