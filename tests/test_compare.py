@@ -67,6 +67,7 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert proc.returncode == 0, proc.stderr
     assert "truth: the synthetic clip's own" in proc.stdout
     assert "gewc " in proc.stdout and "strict " in proc.stdout and "MOTA" in proc.stdout
+    assert "where Pd went" in proc.stdout and "explain" not in proc.stdout  # files only with --explain
     return d
 
 
@@ -173,7 +174,8 @@ def test_compare_without_truth_marks_unmatched_tracks(tmp_path: Path) -> None:
     proc = wfviz("compare", "clip.npy", "--run", "gewc", "--run", "fusion", "-o", "c.rrd", "--image-every", "10",
                  cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
-    assert "MOTA" not in proc.stdout and "frames with a disagreement" in proc.stdout
+    assert "MOTA" not in proc.stdout and "where Pd went" not in proc.stdout
+    assert "frames with a disagreement" in proc.stdout
     rows = _rows(tmp_path / "c.rrd")
     assert len(rows["/camera/image"]) == 5
     assert "/compare/metrics/pd/gewc" not in rows and len(rows["/compare/metrics/tracks/fusion"]) == 50

@@ -696,10 +696,11 @@ def compare(
     exact_every: ExactEveryOpt = EXACT_EVERY,
     jpeg_quality: JpegOpt = PREVIEW_QUALITY,
     gate: GateOpt = 3.0,
+    explain: Annotated[bool, typer.Option("--explain", help="With truth: also write each run's cause of every truth point in every frame beside the recording as <stem>-<label>-explain.csv (frame,target_id,cause,detail,significance,det_dist,track_id) and of every false confirmed track point as <stem>-<label>-explain-false.csv (docs/debugging.md). Where each run's Pd went is printed whenever there is truth.")] = False,
     skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
 ) -> None:
-    """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked."""
+    """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked and, with truth, where each run's Pd went."""
     from wfviz.compare import check_labels, format_summary, parse_run, study_runs
     from wfviz.compare.session import compare as run_compare
 
@@ -714,11 +715,16 @@ def compare(
     own_truth = truth_points is None and hasattr(source, "truth_points")
     if own_truth:
         truth_points = source.truth_points()
+    if explain and truth_points is None:
+        raise ValueError("--explain: needs truth (--truth FILE, or a synth: clip, which brings its own)")
     output = output or Path("recordings") / f"{source.name}-compare.rrd"
     csvs = [output.with_name(f"{output.stem}-{r.label}.csv") for r in runs]
+    whys: list[Path | None] = [output.with_name(f"{output.stem}-{r.label}-explain.csv") if explain else None
+                               for r in runs]
     configs = tuple((Path(s.split(":", 1)[1]), "a --run config file") for s in run_specs or [] if ":" in s)
     studied = tuple((f, f"a file of the study {study}") for f in (study.rglob("*") if study else ()) if f.is_file())
-    _guard_outputs(output, *csvs, clip=source, inputs=((truth, "the truth file"), *configs, *studied))
+    _guard_outputs(output, *csvs, *(f for p in whys for f in _explain_files(p)), clip=source,
+                   inputs=((truth, "the truth file"), *configs, *studied))
     total = source.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
@@ -728,7 +734,7 @@ def compare(
         options = RecorderOptions(source=str(clip), image_every=0 if no_images else image_every,
                                   exact_every=exact_every, jpeg_quality=jpeg_quality)
         summary = run_compare(source, runs, recording=output, tracks=csvs, truth=truth_points, gate=gate,
-                              options=options, start=start, stop=stop,
+                              options=options, start=start, stop=stop, explain=whys,
                               on_frame=lambda n: progress.update(task, completed=n))
     state = (f"[yellow]interrupted by {signal.Signals(summary.signal).name}[/]" if summary.signal else "done")
     out.print(f"{state}: {len(runs)} runs over {summary.frames} frames in {summary.seconds:.2f} s"
@@ -736,6 +742,12 @@ def compare(
     out.print(format_summary(summary), highlight=False, markup=False)
     for r in summary.runs:
         out.print(f"  tracks {r.label}: {r.tracks_csv}", highlight=False, markup=False)
+    for r in summary.runs:
+        if r.explain_csv is not None:
+            from wfviz.explain.report import false_path
+
+            out.print(f"  explain {r.label}: {r.explain_csv}, {false_path(r.explain_csv)}", highlight=False,
+                      markup=False)
     out.print(f"  recording: {output}\n  open it:   rerun {output}", highlight=False, markup=False)
     if summary.signal:
         raise typer.Exit(128 + summary.signal)

@@ -1,6 +1,7 @@
 """``wfviz compare`` through the drive loop (:func:`wfviz.run.drive`): every run over the same
-frames (decoded once; a :class:`~wfviz.compare.runs.RunGroup` steps them), each run's tracks CSV
-and scores as ``wfviz record`` writes them (the same sinks, one per run), the disagreement finder
+frames (decoded once; a :class:`~wfviz.compare.runs.RunGroup` steps them), each run's tracks CSV,
+scores and causes of its misses and false tracks as ``wfviz record`` computes them (the same
+sinks, one per run: :class:`~wfviz.explain.sink.ExplainSink` with truth), the disagreement finder
 (:class:`DisagreementSink`, :mod:`wfviz.compare.differences`) and one recording of them all
 (:class:`wfviz.record.compare.CompareRecorder`), all sinks."""
 
@@ -72,19 +73,31 @@ class _Progress(BaseSink):
 def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: list[Path | None],
             truth: tuple[Points, Points] | None = None, gate: float = 3.0,
             options: RecorderOptions | None = None, start: int = 0, stop: int | None = None,
-            on_frame: Callable[[int], None] | None = None) -> CompareSummary:
+            on_frame: Callable[[int], None] | None = None, explain: list[Path | None] | None = None) -> CompareSummary:
     """Run every ``runs`` tracker over frames ``start <= index < stop`` of ``clip`` through the
     drive loop (:func:`wfviz.run.drive`, a :class:`RunGroup`), writing ``tracks[i]`` (a CSV per
-    run, as ``wfviz track`` writes it) and ``recording`` (``options``: its source and images; the
-    clip's name when no source is given), every output to a temporary name renamed at the end
-    (removed on an error; kept with the frames done on SIGINT/SIGTERM)."""
+    run, as ``wfviz track`` writes it), ``explain[i]`` (with truth: the run's ``EXPLAIN.csv`` and
+    ``EXPLAIN-false.csv``, as ``wfviz track --explain`` writes them) and ``recording``
+    (``options``: its source and images; the clip's name when no source is given), every output
+    to a temporary name renamed at the end (removed on an error; kept with the frames done on
+    SIGINT/SIGTERM). With ``truth`` every run's scores and causes are computed (the summary's
+    ``scores`` and ``explain``). An explain file without truth: ValueError."""
+    from wfviz.explain.report import false_path
+    from wfviz.explain.sink import ExplainSink
+
     check_labels(runs)
+    explain = list(explain) if explain is not None else [None] * len(runs)
+    if len(explain) != len(runs) or len(tracks) != len(runs):
+        raise ValueError(f"compare: {len(runs)} runs, {len(tracks)} tracks CSVs, {len(explain)} explain files")
+    wanted = [p for p in explain if p is not None]
+    if wanted and truth is None:
+        raise ValueError(f"{wanted[0]}: explaining the runs needs truth (--truth FILE)")
     name = str(clip.path) if clip.path is not None else clip.name
     trackers, groups = make_trackers(runs)
     stepper = RunGroup(trackers)
     for trk in trackers:  # the first run whose windows do not fit names its minimum
         check_frame_size(clip.shape, name, trk.min_frame_side())
-    for p in (*tracks, recording):
+    for p in (*tracks, *wanted, *map(false_path, wanted), recording):
         if p is not None:
             check_writable(p)
     options = options or RecorderOptions()
@@ -95,6 +108,8 @@ def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: 
     for i in range(len(runs)):
         if truth is not None:
             openers.append(functools.partial(ScoreSink, truth, gate, run=i))
+            openers.append(functools.partial(ExplainSink, truth, gate, runs[i].tracker, runs[i].config, explain[i],
+                                             run=i))
         path = tracks[i]
         if path is not None:
             openers.append(functools.partial(TracksSink, path, run=i))
@@ -113,4 +128,4 @@ def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: 
         sinks = open_sinks(openers)
         done = drive(clip, stepper, sinks, start=start, stop=stop, signals=signals)
     end = RunEnd(done.frames, done.signal, facts=done.facts)
-    return summarize(runs, groups, end, tracks, time.perf_counter() - t_start)
+    return summarize(runs, groups, end, tracks, time.perf_counter() - t_start, explain)

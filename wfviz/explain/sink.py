@@ -37,7 +37,9 @@ class ExplainSink(BaseSink):
         f = step.frame.index
         result = step.results[self.run]
         boxes = self.boxes.get(f)
-        ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate, boxes)
+        ft = step.facts.get(FrameTruth, self.run)  # the ScoreSink's when it published first: the same values
+        if ft is None or ft.gate != self.gate:
+            ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate, boxes)
         matches = ft.errors.matches
         truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches, boxes)
         false = self.false_causes.explain(result, ft.shown, ft.hidden, matches)

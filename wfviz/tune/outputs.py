@@ -12,7 +12,7 @@ from typing import Any
 from wfviz.tune.folder import StudyFolder
 from wfviz.tune.space import best_toml, make_config
 from wfviz.tune.study import StudySettings
-from wfviz.tune.trial import METRICS
+from wfviz.tune.trial import METRICS, dominant
 
 
 def ranked(trials: list[Any], objective: str) -> list[Any]:
@@ -52,12 +52,14 @@ def _num(v: Any) -> str:
 
 def trials_csv(trials: list[Any], settings: StudySettings) -> str:
     """``trials.csv``: number, state, seconds, error, every parameter, every metric averaged
-    over the tune clips and the validation clips, then per clip."""
+    over the tune clips and the validation clips, the dominant miss and false-track causes over
+    each (empty: none, or a trial run before causes were counted), then every metric per clip."""
     params = settings.space.names
     labels = [c.label for c in settings.clips]
     roles = ["tune"] + (["validate"] if any(c.role == "validate" for c in settings.clips) else [])
     head = (["trial", "state", "seconds", "base", "error"] + params
             + [f"{r}_{m}" for r in roles for m in METRICS]
+            + [f"{r}_dominant_{part}" for r in roles for part in ("miss", "false")]
             + [f"{label}_{m}" for label in labels for m in METRICS])
     buf = io.StringIO()
     w = csv.writer(buf, lineterminator="\n")
@@ -69,6 +71,9 @@ def trials_csv(trials: list[Any], settings: StudySettings) -> str:
         row += [_num(t.params.get(p)) for p in params]
         for r in roles:
             row += [_num(ua.get(r, {}).get(m)) for m in METRICS]
+        causes = ua.get("causes") or {}
+        for r in roles:
+            row += [dominant(causes.get(r), part) or "" for part in ("causes", "false")]
         scores = ua.get("scores", {})
         for label in labels:
             row += [_num(scores.get(label, {}).get(m)) for m in METRICS]

@@ -1,6 +1,6 @@
 """``report.md`` of a study with its PNG plots: the history, the Pareto front, parameter
-importance, and tune against validation scores (the gap says whether the search fitted the
-clips it saw)."""
+importance, tune against validation scores (the gap says whether the search fitted the clips
+it saw), and where Pd went in the base and the best trials (which cause the search reduced)."""
 
 from __future__ import annotations
 
@@ -11,9 +11,10 @@ from typing import Any
 from wfviz.tune.folder import StudyFolder
 from wfviz.tune.outputs import pareto_front, pd_fa, ranked
 from wfviz.tune.study import OBJECTIVES, StudySettings
-from wfviz.tune.trial import METRICS, mean_scores
+from wfviz.tune.trial import METRICS, dominant, mean_scores
 
 SHOWN = 10  # trials in the report's table
+CAUSE_TRIALS = 4  # trials beside the base in the "where Pd went" tables (a Pareto front's first)
 
 
 def _f(v: Any, fmt: str = ".3f") -> str:
@@ -46,6 +47,91 @@ def folds_table(trials: list[Any], settings: StudySettings, k: int) -> tuple[lis
         lines.append(f"| {i + 1} | {', '.join(held)} | {best.number} | {_f(score[best.number])} | {_f(held_score)} |")
     mean = (lambda xs: sum(xs) / len(xs) if xs else math.nan)  # noqa: E731
     return lines, mean(ins), mean(outs)
+
+
+def _trial_name(t: Any, best: Any) -> str:
+    return f"{t.number} (base)" if t.user_attrs.get("base") else f"{t.number} (best)" if t is best else str(t.number)
+
+
+def causes_table(trials: list[Any], role: str, best: Any) -> list[str]:
+    """Where Pd went on the ``role`` clips ("tune", "validate") in each of ``trials`` (the base
+    first), from their ``causes`` attribute: each miss cause in pipeline order and the matched
+    points (count and share of the visible points), the dominant miss cause, and the false-track
+    rows by cause (count and share of the false-track rows); with two trials the change from the
+    first to the second. "-": no causes recorded (a trial run before wfviz counted them)."""
+    from wfviz.explain.types import MISSES, Cause, FalseCause
+
+    counts = [(t.user_attrs.get("causes") or {}).get(role) for t in trials]
+    change = len(trials) == 2 and all(counts)
+    names = [_trial_name(t, best) for t in trials]
+    lines = ["| cause | " + " | ".join(f"trial {n}" for n in names)
+             + (f" | {names[1]} − {names[0]}" if change else "") + " |",
+             "|---|" + "---:|" * (len(trials) + change)]
+
+    def row(name: str, part: str, key: str | None) -> str:
+        cells, values = [], []
+        for c in counts:
+            if not c:
+                cells.append("-")
+                continue
+            whole = sum(c[part].values())
+            n = c[part].get(key, 0) if key is not None else whole
+            values.append(n)
+            cells.append(f"{n} ({100.0 * n / whole:.1f} %)" if key is not None and whole else str(n))
+        if change:
+            cells.append(f"{values[1] - values[0]:+d}" if values[1] != values[0] else "0")
+        return f"| {name} | " + " | ".join(cells) + " |"
+
+    lines += [row(c.value, "causes", c.value) for c in MISSES]
+    lines.append(row(f"**{Cause.MATCHED.value}**", "causes", Cause.MATCHED.value))
+    lines.append("| dominant miss cause | " + " | ".join("-" if not c else dominant(c) or "none" for c in counts)
+                 + (" | |" if change else " |"))
+    lines.append(row("false-track rows", "false", None))
+    lines += [row(f"false: {f.value}", "false", f.value) for f in FalseCause
+              if any(c and c["false"].get(f.value, 0) for c in counts)]
+    return lines
+
+
+def reduced(base: Any, best: Any, role: str) -> str:
+    """A sentence naming the miss cause ``best`` reduced most against ``base`` on the ``role``
+    clips, and those it increased; "" without both trials' causes."""
+    from wfviz.explain.types import MISSES
+
+    a, b = ((t.user_attrs.get("causes") or {}).get(role) for t in (base, best))
+    if not a or not b:
+        return ""
+    drops = [(a["causes"].get(c.value, 0) - b["causes"].get(c.value, 0), c.value) for c in MISSES]
+    gain, cause = max(drops, key=lambda d: d[0])  # the first in pipeline order among equals
+    text = (f"Trial {best.number} has {gain} fewer `{cause}` misses than the base ({a['causes'][cause]} → "
+            f"{b['causes'][cause]}), the largest reduction of any cause" if gain > 0
+            else f"Trial {best.number} reduces no miss cause against the base")
+    rise = [f"`{c}` (+{-n})" for n, c in drops if n < 0]
+    return text + ("; it has more " + ", ".join(rise) if rise else "") + "."
+
+
+def _where_pd_went(done: list[Any], base: list[Any], best: list[Any], settings: StudySettings,
+                   val_clips: list[str]) -> list[str]:
+    """The report's "Where Pd went" section: the base against the best trial (a Pareto study:
+    against the first :data:`CAUSE_TRIALS` of the front), on the tune clips and on the
+    validation clips."""
+    front = {t.number for t in pareto_front(done)} if settings.objective == "pareto" else set()
+    top = best[:1] if settings.objective != "pareto" else [t for t in best if t.number in front]
+    shown = base + [t for t in top if t not in base][:CAUSE_TRIALS]
+    md = ["## Where Pd went", "",
+          "Every visible truth point of the clips (summed over them) by the first stage of the pipeline it did "
+          "not pass, as `wfviz track --explain` counts them (docs/debugging.md): count and share of the visible "
+          "points; then the false confirmed track points by cause. \"-\": a trial run before causes were "
+          "counted.", ""]
+    for role, title in (("tune", "Tune clips"), ("validate", "Validation clips")):
+        if role == "validate" and not val_clips:
+            continue
+        md += [f"### {title}", "", *causes_table(shown, role, best[0] if best else None), ""]
+        if len(shown) == 2 and shown[0] in base:
+            sentence = reduced(shown[0], shown[1], role)
+            md += [sentence, ""] if sentence else []
+        elif shown == base and best and best[0] in base:
+            md += ["The base is the best trial: no other trial to compare it with.", ""]
+    return md
 
 
 def _plots(folder: StudyFolder, trials: list[Any], settings: StudySettings, importance: dict[str, float]) -> list[Path]:
@@ -188,7 +274,7 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
     head += " | gap (tune − validation) " + metrics[0] if val_clips else ""
     md += [head + " |", "|" + "---|" * (1 + len(roles) * len(METRICS) + (1 if val_clips else 0))]
     for t in shown:
-        name = f"{t.number} (base)" if t.user_attrs.get("base") else f"{t.number} (best)" if t is best[0] else str(t.number)
+        name = _trial_name(t, best[0])
         row = f"| {name} | " + " | ".join(_f(t.user_attrs[r][m]) for r in roles for m in METRICS)
         if val_clips:
             row += f" | {_f(t.user_attrs['tune'][metrics[0]] - t.user_attrs['validate'][metrics[0]], '+.3f')}"
@@ -202,6 +288,8 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
                    "does **not** hold on the validation clips (the search fitted the tune clips)")
         md += [f"The best trial gains {gain_t:+.3f} {metrics[0]} over the base on the tune clips and "
                f"{gain_v:+.3f} on the validation clips: the gain {verdict}.", ""]
+    if done:
+        md += _where_pd_went(done, base, best, settings, val_clips)
     if folds >= 2 and not val_clips and done and len(tune_clips) >= 2:
         lines, ins, outs = folds_table(trials, settings, folds)
         md += [f"## Leave-clips-out cross-validation ({folds} folds)", "",

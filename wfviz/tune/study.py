@@ -26,7 +26,7 @@ from wfviz.run import StopSignals
 from wfviz.tune.clips import StudyClip
 from wfviz.tune.folder import JOURNAL
 from wfviz.tune.space import Param, SearchSpace, config_dict, make_config
-from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores
+from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores, sum_counts
 from wfviz.tune.workers import make_pool
 
 #: objective name -> (metrics, directions)
@@ -261,6 +261,17 @@ def run_study(settings: StudySettings, study: Any, work: Path,
     return state
 
 
+def causes_attr(causes: dict[str, dict[str, Any]], tune_labels: list[str],
+                valid_labels: list[str]) -> dict[str, Any]:
+    """A trial's ``causes`` user attribute: where its Pd went (:func:`wfviz.tune.trial.cause_counts`)
+    summed over the tune clips (``tune``) and the validation clips (``validate``, when there are
+    any)."""
+    out = {"tune": sum_counts([causes[label] for label in tune_labels if label in causes])}
+    if valid_labels:
+        out["validate"] = sum_counts([causes[label] for label in valid_labels if label in causes])
+    return out
+
+
 def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[str, ...],
           tune_labels: list[str], valid_labels: list[str]) -> None:
     from optuna.trial import TrialState
@@ -276,6 +287,8 @@ def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[s
     trial.set_user_attr("tune", tuned)
     if valid_labels:
         trial.set_user_attr("validate", mean_scores(outcome.scores, valid_labels))
+    if outcome.causes:
+        trial.set_user_attr("causes", causes_attr(outcome.causes, tune_labels, valid_labels))
     trial.set_user_attr("seconds", outcome.seconds)
     values = [tuned[m] for m in metrics]
     if not all(math.isfinite(v) for v in values):

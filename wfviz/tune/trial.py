@@ -1,6 +1,7 @@
 """One trial of a tuning study: a configuration run over every clip and scored exactly as
 ``wfviz track`` followed by ``wfviz eval`` would score it (the tracks CSV is written and read
-back), in whatever process runs it (a local worker or a Ray task)."""
+back), with the causes of its misses and false tracks counted as ``wfviz track --explain``
+counts them (:mod:`wfviz.explain`), in whatever process runs it (a local worker or a Ray task)."""
 
 from __future__ import annotations
 
@@ -37,14 +38,51 @@ class TrialTask:
 
 @dataclass(frozen=True)
 class TrialOutcome:
-    """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, its wall time, and
-    the signal that cut it when it ran in the study's own process (its run caught it)."""
+    """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, its wall time, the
+    signal that cut it when it ran in the study's own process (its run caught it), and where its
+    Pd went on each clip (``causes``: {clip label: :func:`cause_counts`})."""
 
     number: int
     scores: dict[str, dict[str, float]] | None
     error: str | None
     seconds: float
     signal: int | None = None
+    causes: dict[str, dict[str, Any]] | None = None
+
+
+def cause_counts(summary: Any) -> dict[str, Any]:
+    """An :class:`~wfviz.explain.report.ExplainSummary` as JSON-ready counts: ``causes`` (every
+    truth cause but hidden: visible points), ``false`` (every false-track cause: confirmed track
+    points) and ``hidden`` points."""
+    from wfviz.explain.types import MISSES, Cause, FalseCause
+
+    return {"causes": {c.value: int(summary.causes.get(c, 0)) for c in (Cause.MATCHED, *MISSES)},
+            "false": {c.value: int(summary.false_causes.get(c, 0)) for c in FalseCause},
+            "hidden": int(summary.hidden)}
+
+
+def dominant(counts: dict[str, Any] | None, part: str = "causes") -> str | None:
+    """The most frequent miss cause of :func:`cause_counts` (``part`` "false": false-track
+    cause); None when nothing was missed (no false track) or no counts."""
+    from wfviz.explain.report import ExplainSummary
+
+    if not counts or part not in counts:
+        return None
+    if part == "causes":
+        return ExplainSummary(dict(counts["causes"]), {}).dominant
+    top = max(((n, k) for k, n in counts["false"].items() if n), default=None)
+    return top[1] if top is not None else None
+
+
+def sum_counts(counts: list[dict[str, Any]]) -> dict[str, Any]:
+    """The :func:`cause_counts` of several clips added up."""
+    out: dict[str, Any] = {"causes": {}, "false": {}, "hidden": 0}
+    for c in counts:
+        for part in ("causes", "false"):
+            for k, n in c[part].items():
+                out[part][k] = out[part].get(k, 0) + n
+        out["hidden"] += c["hidden"]
+    return out
 
 
 def run_trial(task: TrialTask) -> TrialOutcome:
@@ -58,16 +96,36 @@ def run_trial(task: TrialTask) -> TrialOutcome:
         return _run(task)
 
 
+def _track(source: Any, tracker: Any, task: TrialTask, csv_path: Path, truth: Path) -> tuple[Any, dict[str, Any]]:
+    """``tracker`` over ``source`` (frames before ``task.stop``), writing the tracks CSV
+    ``csv_path`` as ``wfviz track`` does, and the causes of its misses and false tracks against
+    ``truth`` (:func:`cause_counts`): the run's summary and those counts."""
+    from wfviz.evaluate import read_truth
+    from wfviz.explain.report import ExplainSummary
+    from wfviz.explain.sink import ExplainSink
+    from wfviz.run import SingleRun, StopSignals, drive, open_sinks
+    from wfviz.sinks import TracksSink
+
+    points = read_truth(truth)
+    with StopSignals() as signals:  # as wfviz.run.run: a signal stops the run after its frame
+        sinks = open_sinks([lambda: TracksSink(csv_path),
+                            lambda: ExplainSink(points, task.gate, task.tracker, tracker.config)])
+        summary = drive(source, SingleRun(tracker), sinks, stop=task.stop, signals=signals)
+    why = summary.facts.get(ExplainSummary)
+    assert why is not None, "the ExplainSink concluded no summary"
+    return summary, cause_counts(why)
+
+
 def _run(task: TrialTask) -> TrialOutcome:
     from wfviz.config import config_from_dict
     from wfviz.evaluate import evaluate
     from wfviz.io.clip import open_clip
-    from wfviz.run import run
     from wfviz.trackers import TRACKERS, config_class, make_tracker
     from wfviz.tune.cache import cacheable, replay
 
     t0 = time.perf_counter()
     scores: dict[str, dict[str, float]] = {}
+    causes: dict[str, dict[str, Any]] = {}
     try:
         config = config_from_dict(task.config, config_class(task.tracker))
         work = Path(task.work)
@@ -80,7 +138,7 @@ def _run(task: TrialTask) -> TrialOutcome:
             else:
                 source, tracker = open_clip(clip.spec), make_tracker(task.tracker, config)
             try:
-                summary = run(source, tracker, tracks_csv=csv_path, stop=task.stop)
+                summary, causes[clip.label] = _track(source, tracker, task, csv_path, clip.truth)
                 if summary.interrupted:
                     return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0,
                                         summary.signal)
@@ -95,7 +153,7 @@ def _run(task: TrialTask) -> TrialOutcome:
         where = traceback.extract_tb(exc.__traceback__)[-1]
         error = f"{type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         return TrialOutcome(task.number, None, error.replace("\n", " "), time.perf_counter() - t0)
-    return TrialOutcome(task.number, scores, None, time.perf_counter() - t0)
+    return TrialOutcome(task.number, scores, None, time.perf_counter() - t0, causes=causes)
 
 
 def mean_scores(scores: dict[str, dict[str, float]], labels: list[str]) -> dict[str, float]:
