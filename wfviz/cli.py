@@ -647,6 +647,7 @@ def tune(
 
 def _tune_summary(result, metric: str) -> None:
     from wfviz.tune.outputs import ranked
+    from wfviz.tune.trial import dominant
 
     state, settings = result.state, result.settings
     done = [t for t in state.trials if t.values is not None]
@@ -668,6 +669,9 @@ def _tune_summary(result, metric: str) -> None:
         if has_val:
             v = t.user_attrs["validate"]
             line += "  | validate " + " ".join(f"{m} {v[m]:.3f}" for m in ("mota", "idf1", "pd", "fa"))
+        miss = dominant((t.user_attrs.get("causes") or {}).get("tune"))
+        if miss:
+            line += f"  | most misses: {miss}"
         out.print(line, highlight=False, markup=False)
     for f in result.files:
         if f.suffix in (".toml", ".csv", ".md", ".rrd") and f.parent == result.files[0].parent:
