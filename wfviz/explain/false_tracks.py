@@ -7,8 +7,9 @@
 3. ``defect``: within 1 px of a pixel flagged as a sensor defect;
 4. ``camera_motion``: it moves (``MIN_SPEED`` px/frame at least) and so do ``COMMON_TRACKS`` - 1
    other tracks matching no truth (tentative ones with ``MIN_HITS`` hits included) with a velocity
-   within ``COMMON_VELOCITY`` px/frame of its own: the scene moved, the camera's motion was not
-   compensated;
+   within ``COMMON_VELOCITY`` px/frame of its own, and the camera's motion was not measured (not
+   compensated, or lost) on some frame of its life: the scene moved with the camera (tracks
+   moving alike under a measured camera are drifting clutter: ``unknown``, said in the detail);
 5. ``static_in_scene``: over its last ``STATIC_FRAMES`` frames (``STATIC_MIN`` at least) its
    positions in the scene (camera motion removed) stay within ``STATIC_SPREAD`` px of their median;
 6. ``structure``: on the sky–ground line (within ``HORIZON_RANGE`` px), or its detection is
@@ -57,6 +58,7 @@ class FalseCauses:
         self.gate = gate
         self._scene: dict[int, deque[tuple[float, float]]] = {}
         self._matched: dict[int, tuple[int, int]] = {}  # track -> (target, last frame)
+        self._unmeasured: set[int] = set()  # live tracks that lived through a frame of unmeasured camera motion
 
     def explain(self, result: FrameResult, shown: list[Point], hidden: list[Point],
                 matches: tuple[tuple[int, int, float], ...]) -> tuple[FalseExplanation, ...]:
@@ -78,15 +80,21 @@ class FalseCauses:
         return tuple(out)
 
     def _remember(self, result: FrameResult, front: FrontEndResult | None) -> None:
-        """Each live track's scene position (its image position minus the camera's offset)."""
+        """Each live track's scene position (its image position minus the camera's offset), and
+        the tracks that lived through a frame whose camera motion was not measured."""
         off = front.offset if front is not None else np.zeros(2)
         ox, oy = float(off[0]), float(off[1])
+        cam = front.camera if front is not None else None
+        unmeasured = cam is None or not cam.reliable
         live = set()
         for t in result.tracks:
             live.add(t.track_id)
             self._scene.setdefault(t.track_id, deque(maxlen=STATIC_FRAMES)).append((t.x - ox, t.y - oy))
+            if unmeasured:
+                self._unmeasured.add(t.track_id)
         for tid in [k for k in self._scene if k not in live]:
             del self._scene[tid]
+            self._unmeasured.discard(tid)
 
     @staticmethod
     def _common_motion(result: FrameResult, false: list[TrackState], taken: set[int]) -> dict[int, str]:
@@ -125,10 +133,11 @@ class FalseCauses:
             r, c = int(round(t.y)), int(round(t.x))
             if ((np.abs(bad[:, 0] - r) <= 1) & (np.abs(bad[:, 1] - c) <= 1)).any():
                 return FalseCause.DEFECT, "within 1 px of a pixel flagged as a sensor defect"
-        if t.track_id in common:
+        if t.track_id in common and t.track_id in self._unmeasured:
             cam = front.camera if front is not None else None
-            state = ("motion not compensated" if cam is None else
-                     f"camera motion {'measured' if cam.reliable else 'lost'}, {cam.corners} corners agreed")
+            state = ("camera motion not compensated" if cam is None else
+                     f"camera motion {'measured now' if cam.reliable else 'lost'}, {cam.corners} corners agreed; "
+                     f"not measured on some frame of the track")
             return FalseCause.CAMERA_MOTION, f"{common[t.track_id]} ({state})"
         scene = self._scene.get(t.track_id)
         if scene is not None and len(scene) >= STATIC_MIN:
@@ -140,6 +149,9 @@ class FalseCauses:
         structure = _structure(result, front, t)
         if structure:
             return FalseCause.STRUCTURE, structure
+        if t.track_id in common:  # the camera's motion was measured all along: the scene itself moves
+            return FalseCause.UNKNOWN, (f"{common[t.track_id].replace(': the scene moved', '')}, with the camera's "
+                                        f"motion measured (drifting clutter: clouds, smoke?)")
         return FalseCause.UNKNOWN, ""
 
 
