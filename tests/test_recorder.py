@@ -180,3 +180,213 @@ def test_gewc_recording_logs_the_front_end_entities(tmp_path: Path) -> None:
     assert sorted(rows["/geometry/horizon_confidence"]) == [0]
     for path in ("/geometry/circle_confidence", "/geometry/horizon_confidence"):
         assert all(0.0 <= v <= 1.0 for v in _scalars(rrd, path).values()), path
+
+
+# -- evidence: explanations, track tests, camera motion, defects, legend (issue 34) -------------
+
+N_EVIDENCE = 12
+HOT = [(5, 5), (10, 50), (20, 20), (40, 8), (50, 50), (58, 30), (33, 44), (12, 12)]  # (row, col)
+
+
+def _evidence_clip(path: Path) -> Path:
+    """64 x 64 frames of flat noise (no corners for the camera's flow), one dot moving 3 px a
+    frame along row 30 and eight hot pixels (0.2 % of the frame: flagged, then replaced)."""
+    rng = np.random.default_rng(0)
+    frames = np.full((N_EVIDENCE, 64, 64), 1000.0) + rng.normal(0, 3, (N_EVIDENCE, 64, 64))
+    for k in range(N_EVIDENCE):
+        frames[k, 30:32, 10 + 3 * k:12 + 3 * k] += 300
+    for r, c in HOT:
+        frames[:, r, c] += 400
+    np.save(path, frames.astype(np.uint16))
+    return path
+
+
+def _explanation(frame: int):
+    """A hand-made explanation: T1 on the dot (latency, then matched, not detected on frame 8),
+    T2 hidden, a false track on the first hot pixel from frame 3."""
+    from wfviz.explain import Cause, FalseCause, FalseExplanation, FrameExplanation, TruthExplanation
+
+    cause = Cause.LATENCY if frame < 6 else Cause.NOT_DETECTED if frame == 8 else Cause.MATCHED
+    truth = (TruthExplanation(frame, 1, 11.5 + 3 * frame, 30.5, cause, f"detail {frame}", significance=10.0 + frame,
+                              residual=10.0 + frame, change=5.0, threshold=4.0, det_dist=0.2, track_id=9),
+             TruthExplanation(frame, 2, 40.0, 40.0, Cause.HIDDEN))
+    false = (FalseExplanation(frame, 7, 5.0, 5.0, FalseCause.DEFECT, "on a flagged pixel"),) if frame >= 3 else ()
+    return FrameExplanation(frame, truth, false)
+
+
+@pytest.fixture(scope="module")
+def evidence_rrd(tmp_path_factory) -> Path:
+    """The evidence clip through GEWC's default configuration with a hand-made explanation
+    published into each step's facts (as wfviz.explain's sink does) and recorded by a RecordingSink."""
+    from wfviz.explain import FrameExplanation
+    from wfviz.record_options import RecorderOptions
+    from wfviz.run import SingleRun, drive
+    from wfviz.sinks import BaseSink, RecordingSink, Step
+    from wfviz.trackers import load_tracker
+
+    class Explain(BaseSink):
+        def publish(self, step: Step) -> None:
+            step.facts.put(_explanation(step.frame.index))
+
+    folder = tmp_path_factory.mktemp("evidence")
+    clip = open_clip(_evidence_clip(folder / "clip.npy"))
+    rrd = folder / "e.rrd"
+    assert FrameExplanation  # the type the sink reads
+    drive(clip, SingleRun(load_tracker("gewc", None)),
+          [Explain(), RecordingSink(rrd, "gewc", clip, RecorderOptions(image_every=1))])
+    return rrd
+
+
+def _rows(rrd: Path, entity: str, column: str) -> dict[int, list]:
+    """{frame: the row's values of ``column``} of a temporal entity."""
+    out: dict[int, list] = {}
+    for chunk in RrdReader(rrd).stream():
+        if chunk.entity_path == entity and not chunk.is_static:
+            b = chunk.to_record_batch()
+            if column in b.schema.names:
+                out.update(zip(b.column("frame").to_pylist(), b.column(column).to_pylist()))
+    return out
+
+
+def _static(rrd: Path, entity: str, column: str) -> list:
+    return [v for chunk in RrdReader(rrd).stream() if chunk.entity_path == entity and chunk.is_static
+            for b in [chunk.to_record_batch()] if column in b.schema.names for v in b.column(column).to_pylist()]
+
+
+def _labels(context: list) -> dict[int, str]:
+    """{class id: label} of an AnnotationContext row."""
+    return {c["class_id"]: c["class_description"]["info"]["label"] for c in context[0]}
+
+
+def test_explanation_is_recorded_with_cause_classes(evidence_rrd: Path) -> None:
+    from wfviz.explain import Cause
+
+    causes = _labels(_static(evidence_rrd, "/camera/causes", "AnnotationContext:context")[0])
+    assert len(causes) == len(Cause) and causes[1] == "matched" and causes[5] == "not detected"
+    assert "latency" in causes[7] and "hidden" in causes[2]
+    ids = _rows(evidence_rrd, "/camera/causes", "Points2D:class_ids")
+    assert sorted(ids) == list(range(N_EVIDENCE))
+    assert ids[0] == [7, 2] and ids[6] == [1, 2] and ids[8] == [5, 2]  # latency, matched, not detected; hidden
+    labels = _rows(evidence_rrd, "/camera/causes", "Points2D:labels")
+    assert labels[8][0] == "T1 not detected: detail 8"
+    assert _rows(evidence_rrd, "/camera/causes", "detail")[8] == ["detail 8", ""]  # hover values
+    misses = _rows(evidence_rrd, "/camera/misses", "Points2D:labels")
+    assert misses[8] == ["T1 missed: not detected: detail 8"] and not misses.get(9)  # cleared after
+    assert misses[0] == ["T1 missed: latency (its track is too young): detail 0"]
+    false = _rows(evidence_rrd, "/camera/false_tracks", "Points2D:labels")
+    assert false[3] == ["track 7 false track: sensor defect: on a flagged pixel"]
+    assert "sensor defect" in _labels(_static(evidence_rrd, "/camera/false_tracks", "AnnotationContext:context")[0])[4]
+    significance = _scalars(evidence_rrd, "/explain/T1/significance")
+    assert significance == {f: 10.0 + f for f in range(N_EVIDENCE)}
+    assert set(_scalars(evidence_rrd, "/explain/T1/threshold").values()) == {4.0}
+    assert _static(evidence_rrd, "/explain/T1/significance", "SeriesLines:names") == [["T1 significance (σ)"]]
+    legend = _rows(evidence_rrd, "/legend", "Points2D:labels") or {0: _static(evidence_rrd, "/legend", "Points2D:labels")[-1]}
+    assert {"detection", "truth", "not detected", "missed (mark)"} <= set(next(iter(legend.values())))
+
+
+def test_motion_lost_is_unknown_and_defects_are_counted(evidence_rrd: Path) -> None:
+    """Flat noise has no corners for the flow: from frame 1 the shift is NaN (unknown, never
+    0 = still), the confidence 0, one WARN line says so; the eight hot pixels, flagged on frame 3,
+    are replaced from frame 4 (8 > 0.1 % of 4096 pixels: one WARN line)."""
+    dx, dy = _scalars(evidence_rrd, "/registration/dx"), _scalars(evidence_rrd, "/registration/dy")
+    assert sorted(dx) == sorted(dy) == list(range(N_EVIDENCE))
+    assert dx[0] == 0.0 and all(np.isnan(dx[f]) and np.isnan(dy[f]) for f in range(1, N_EVIDENCE))
+    confidence = _scalars(evidence_rrd, "/registration/confidence")
+    assert confidence[0] == 1.0 and all(confidence[f] == 0.0 for f in range(1, N_EVIDENCE))
+    assert sorted(_scalars(evidence_rrd, "/registration/corners")) == list(range(N_EVIDENCE))
+    assert sorted(_scalars(evidence_rrd, "/registration/moving")) == list(range(N_EVIDENCE))
+    text = _rows(evidence_rrd, "/log", "TextLog:text")
+    level = _rows(evidence_rrd, "/log", "TextLog:level")
+    lines = [(f, t, lv) for f in text for t, lv in zip(text[f], level[f])]
+    lost = [(f, lv) for f, t, lv in lines if t.startswith("camera motion lost")]
+    assert lost == [(1, "WARN")]
+    count = _scalars(evidence_rrd, "/defects/count")
+    assert sorted(count) == list(range(N_EVIDENCE)) and count[0] == 0 and count[N_EVIDENCE - 1] == len(HOT)
+    warned = [(f, t, lv) for f, t, lv in lines if "replaced as sensor defects" in t]
+    assert len(warned) == 1 and warned[0][2] == "WARN" and warned[0][1].startswith(f"{len(HOT)} pixels replaced")
+    # the noise map on every exact frame (0 and 10 of 12), the search region once (it never changes)
+    assert sorted(_rows(evidence_rrd, "/suppressed/noise", "Image:format")) == [0, 10]
+    assert sorted(_rows(evidence_rrd, "/camera/search_region", "SegmentationImage:format")) == [0]
+
+
+def test_confirmed_track_tests_are_series_against_their_levels(evidence_rrd: Path) -> None:
+    """The dot's track is confirmed: each test of its rule is a series with its level, named
+    after the track; tracks too young to be confirmed have none."""
+    text = _rows(evidence_rrd, "/log", "TextLog:text")
+    confirmed = [int(t.split()[1]) for f in text for t in text[f] if " confirmed after " in t]
+    assert len(confirmed) == 1
+    tid = confirmed[0]
+    entities = {c.entity_path for c in RrdReader(evidence_rrd).stream()}
+    tests = {e for e in entities if e.startswith(f"/tests/{tid}/")}
+    assert {f"/tests/{tid}/persistence", f"/tests/{tid}/not_clutter", f"/tests/{tid}/motion_t2"} <= tests, tests
+    persistence = _rows(evidence_rrd, f"/tests/{tid}/persistence", "Scalars:scalars")  # [value, level]
+    assert len(persistence) >= N_EVIDENCE - 6 and all(len(v) == 2 for v in persistence.values())
+    first = min(persistence)
+    value, level = persistence[first + 1]
+    assert value >= level > 0  # it passed the test it was confirmed by
+    assert _static(evidence_rrd, f"/tests/{tid}/persistence", "SeriesLines:names") == [
+        [f"track {tid}", f"track {tid} level"]]
+    # the eight hot pixels' tentative tracks are replaced before they are old enough to be shown
+    shown = {e.split("/")[2] for e in entities if e.startswith("/tests/")}
+    assert shown == {str(tid)}, shown
+
+
+def test_held_back_track_is_logged_once(tmp_path: Path) -> None:
+    """A tentative track old enough to be confirmed, held back by the same test 25 frames in a
+    row: one INFO line naming the test and its value against its level."""
+    from wfviz.io.frames import Frame
+    from wfviz.record.recorder import Recorder
+    from wfviz.record_options import RecorderOptions
+    from wfviz.stages.detection import Detections
+    from wfviz.trackers.base import FrameResult
+    from wfviz.tracking.decision import Decisions, Statistic, Verdicts
+    from wfviz.tracking.tracks import TrackState
+
+    none = Detections(np.zeros((0, 2)), np.zeros(0), np.zeros(0), np.zeros(0), np.zeros((0, 4)),
+                      np.zeros(0, np.int64), np.zeros((8, 8), np.int32), 1.0)
+    tests = (Statistic("persistence", np.array([20.0]), 9.0, ">=", np.array([True])),
+             Statistic("motion: steady progress", np.array([0.3]), 1.0, ">=", np.array([False]), unit="px"),
+             Statistic("misses", np.array([0.0]), 3.0, ">=", np.array([False]), deletes=True))
+    verdicts = Verdicts(np.array([7]), np.array([False]), Decisions(np.array([False]), np.array([False]), [""], tests),
+                        np.array([False]), {}, "sprt", 6)
+    rrd = tmp_path / "held.rrd"
+    rec = Recorder(rrd, "gewc", RecorderOptions(image_every=0))
+    for f in range(30):
+        track = TrackState(7, 4.0, 4.0, 0.0, 0.0, False, False, 6 + f, 0)
+        rec.log(Frame(f, f / 20, np.zeros((8, 8), np.uint8)),
+                FrameResult(f, f / 20, (track,), (), none, (), {"total": 1.0}, verdicts))
+    rec.close()
+    text = _rows(rrd, "/log", "TextLog:text")
+    held = [(f, t) for f in text for t in text[f] if "held back" in t]
+    assert held == [(24, "track 7 held back 25 frames by motion: steady progress 0.3 px < 1")]
+    assert _rows(rrd, "/log", "TextLog:level")[24] == ["INFO"]
+    steady = _rows(rrd, "/tests/7/motion_steady_progress", "Scalars:scalars")
+    assert sorted(steady) == list(range(30)) and set(map(tuple, steady.values())) == {(0.3, 1.0)}
+    # of a tentative track, only the tests that held it back (not persistence, not the deletion test)
+    assert {c.entity_path for c in RrdReader(rrd).stream() if c.entity_path.startswith("/tests/")} == {
+        "/tests/7/motion_steady_progress"}
+
+
+def test_default_blueprint_hides_defects_and_names_views(evidence_rrd: Path) -> None:
+    """The camera view keeps the sensor defects' entity but does not show it (visible = False);
+    every GEWC bar panel is titled with its track; the legend view is there."""
+    reader = RrdReader(evidence_rrd)
+    stores = reader.blueprints()
+    titles: set[str] = set()
+    assert len(stores) == 2
+    for store in stores:  # the first (written at the start) and the final one
+        names: dict[str, str] = {}
+        hidden: dict[str, list] = {}
+        for chunk in reader.stream(store=store):
+            b = chunk.to_record_batch()
+            if "ViewBlueprint:display_name" in b.schema.names:
+                names[chunk.entity_path] = b.column("ViewBlueprint:display_name").to_pylist()[0][0]
+            if "EntityBehavior:visible" in b.schema.names:
+                hidden[chunk.entity_path] = b.column("EntityBehavior:visible").to_pylist()
+        camera = next(path for path, name in names.items() if name == "Camera + overlays")
+        assert hidden == {f"{camera}/ViewContents/overrides/camera/bad_pixels/visualizers": [[False]]}, hidden
+        assert "Legend" in names.values()
+        titles |= set(names.values())
+    text = _rows(evidence_rrd, "/log", "TextLog:text")
+    tid = next(int(t.split()[1]) for f in text for t in text[f] if " confirmed after " in t)
+    assert {f"GEWC weights, track {tid}", "Test: persistence", "Camera motion", "Truth T1 (σ)"} <= titles, titles

@@ -446,13 +446,13 @@ def test_plan_shots_centres_the_crop_on_the_target_or_track(clip_rrd: Path) -> N
     (shot,) = plan_shots(clip_rrd, target=7)
     x, y = _target_at(9)
     assert shot == Shot(9, crop_bounds(x, y, 4.0, (CLIP_W, CLIP_H)), "")
-    assert shot.bounds == (x + 0.5 - 40, x + 0.5 + 40, y + 0.5 - 32, y + 0.5 + 32)
+    assert shot.bounds == (x - 40, x + 40, y - 32, y + 32)  # the images are placed on pixel centres
     shots = plan_shots(clip_rrd, frames="1, 5", track=3, zoom=2)
     assert [s.label for s in shots] == ["frame 1, track 3", "frame 5, track 3"]
     for s in shots:
         assert s.time is not None and s.bounds is not None
         cx, cy = (s.bounds[0] + s.bounds[1]) / 2, (s.bounds[2] + s.bounds[3]) / 2
-        assert (cx - 0.5, cy - 0.5) == _target_at(s.time)  # the trail ends at the track
+        assert (cx, cy) == _target_at(s.time)  # the trail ends at the track
         assert s.bounds[1] - s.bounds[0] == CLIP_W / 2
     assert plan_shots(clip_rrd, frames="0,3") == [Shot(0, None, "frame 0"), Shot(3, None, "frame 3")]
     assert plan_shots(clip_rrd, frame=2, around="10.5,20") == [Shot(2, crop_bounds(10.5, 20, 4.0, (CLIP_W, CLIP_H)))]

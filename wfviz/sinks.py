@@ -230,6 +230,11 @@ class RecordingSink(BaseSink):
         truth = step.facts.get(FrameTruth, self.run)
         if truth is not None:
             rec.log_truth(truth.shown, truth.hidden, truth.errors)
+        from wfviz.explain.types import FrameExplanation
+
+        explanation = step.facts.get(FrameExplanation, self.run)
+        if explanation is not None:  # an ExplainSink's (wfviz.explain)
+            rec.log_explanation(explanation)
         self.frames += 1
 
     def finish(self, end: RunEnd) -> None:

@@ -21,8 +21,9 @@ from wfviz.evaluate import format_table
 from wfviz.io.frames import Frame
 from wfviz.io.outputs import replace_into, temp_path
 from wfviz.record import recorder_class
+from wfviz.record.evidence import FALSE_TRACK_COLOR, MARK_RADIUS, MISSED_COLOR
 from wfviz.record.images import ImageLog
-from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer
+from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer, pixel_centres
 from wfviz.record_options import RecorderOptions
 from wfviz.sinks import BaseSink, FrameTruth, RunEnd, Step
 
@@ -30,8 +31,8 @@ from wfviz.sinks import BaseSink, FrameTruth, RunEnd, Step
 SHARED_IMAGES = frozenset({"suppressed/image", "suppressed/noise"})
 RUN_COLORS = ((31, 160, 255), (255, 127, 14), (44, 200, 80), (230, 60, 60), (170, 110, 230), (140, 86, 75),
               (240, 120, 200), (190, 190, 40), (23, 210, 210), (150, 150, 150))
-MARK_COLORS = {"missed": (255, 40, 40), "false_track": (255, 160, 0), "switch": (255, 0, 255),
-               "unmatched": (255, 160, 0)}
+MARK_COLORS = {"missed": MISSED_COLOR, "false_track": FALSE_TRACK_COLOR, "switch": (255, 0, 255),
+               "unmatched": FALSE_TRACK_COLOR}  # a single recording's explanation marks look the same
 METRICS = (("pd", "Pd per frame"), ("false_tracks", "False tracks"), ("cle", "CLE (px)"),
            ("tracks", "Confirmed tracks"), ("ms", "ms per frame"))
 
@@ -91,6 +92,7 @@ class CompareRecorder(BaseSink):
             self.temp.unlink(missing_ok=True)
             raise
         self.images = ImageLog(self.rec, options.image_every, options.exact_every, options.jpeg_quality)
+        pixel_centres(self.rec, ("camera/image",))
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self.runs: list[Any] = []
@@ -136,7 +138,7 @@ class CompareRecorder(BaseSink):
             ms_ = [m for m in cmp.marks if m.kind == kind]
             rec.log(f"compare/marks/{kind}", rr.Points2D(
                 np.array([(m.x, m.y) for m in ms_], dtype=np.float32).reshape(-1, 2),
-                labels=[m.text for m in ms_], colors=MARK_COLORS[kind], radii=6.0, show_labels=False))
+                labels=[m.text for m in ms_], colors=MARK_COLORS[kind], radii=MARK_RADIUS, show_labels=False))
         f, t = frame.index, frame.time
         for m in cmp.began:
             self.columns.text("compare/log", f, t, m.text, "WARN")

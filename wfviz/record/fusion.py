@@ -6,6 +6,7 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from wfviz.record.evidence import DRAW_TRACKS
 from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, track_color, track_colors
 from wfviz.trackers.fusion import FusionResult
 from wfviz.tracking import EventKind
@@ -17,6 +18,9 @@ class FusionRecorder(Recorder):
     """Logs candidates' features, rectangles, measurements, Φ and matching cost per track,
     global re-detections, residual, mask, horizon and Kalman scalars."""
 
+    def series_views(self) -> list[rrb.View]:
+        return super().series_views() + self.motion_views()
+
     def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
         if not track_ids:
             return rrb.Tabs(rrb.TimeSeriesView(origin="fusion", name="Fused feature Φ / cost"),
@@ -27,6 +31,7 @@ class FusionRecorder(Recorder):
             rrb.TimeSeriesView(origin="fusion", name="Matching cost",
                                contents=[f"/fusion/{i}/cost" for i in track_ids]),
             *self.kalman_views(track_ids),
+            *self.test_views(track_ids),
         )
 
     def log_stages(self, result: FusionResult, images: bool) -> None:  # type: ignore[override]
@@ -52,7 +57,8 @@ class FusionRecorder(Recorder):
         ids = [x.track_id for x in m]
         rec.log("camera/measurements", rr.Points2D(
             np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
-            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, show_labels=False))
+            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, draw_order=DRAW_TRACKS,
+            show_labels=False))
         a = np.linspace(0, 2 * np.pi, 73)
         r = result.recover_radius
         lost = result.lost if result.global_detection else ()

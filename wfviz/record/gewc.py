@@ -6,22 +6,34 @@ import numpy as np
 import rerun as rr
 import rerun.blueprint as rrb
 
+from wfviz.record.evidence import DRAW_CLUTTER, DRAW_TRACKS, class_context
 from wfviz.record.recorder import Recorder, class_ids, track_color, track_colors
 from wfviz.trackers.gewc import GEWCResult
 
 
+CLUTTER_COLOR = (255, 96, 0, 160)
+
+
 class GEWCRecorder(Recorder):
     """Logs mask, horizon, residual, GEWC measurements and weights, Kalman scalars."""
+
+    _clutter_started = False
+
+    def series_views(self) -> list[rrb.View]:
+        return super().series_views() + self.motion_views()
 
     def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
         if not track_ids:
             return rrb.Tabs(rrb.BarChartView(origin="gewc", name="GEWC region weights"),
                             rrb.TimeSeriesView(origin="kalman", name="Kalman"))
         shown = track_ids[:12]
+        # two columns up to 4 tracks, three beyond: each panel wide enough for its title
         return rrb.Tabs(
-            rrb.Grid(*[rrb.BarChartView(origin=f"gewc/{i}", name=f"GEWC weights, track {i}")
-                       for i in shown], name="GEWC region weights"),
+            rrb.Grid(*[rrb.BarChartView(origin=f"gewc/{i}", name=f"GEWC weights, track {i}",
+                                        plot_legend=rrb.PlotLegend(visible=False))
+                       for i in shown], grid_columns=2 if len(shown) <= 4 else 3, name="GEWC region weights"),
             *self.kalman_views(track_ids),
+            *self.test_views(track_ids),
         )
 
     def log_stages(self, result: GEWCResult, images: bool) -> None:  # type: ignore[override]
@@ -30,16 +42,20 @@ class GEWCRecorder(Recorder):
         if images:
             self.image("suppressed/image", result.front.suppressed)
         if result.clutter is not None:  # static clutter stage (clutter.enabled)
+            if not self._clutter_started:
+                self._clutter_started = True
+                rec.log("camera/clutter", class_context([(1, "static clutter", CLUTTER_COLOR)]), static=True)
+                self.add_legend([("static clutter", CLUTTER_COLOR)])
             static = result.clutter == 1
             rec.log("camera/clutter", rr.Points2D(
-                result.detections.xy[static].astype(np.float32), radii=2.5,
-                colors=(255, 96, 0, 160), show_labels=False))
+                result.detections.xy[static].astype(np.float32), radii=2.5, class_ids=1,
+                colors=CLUTTER_COLOR, draw_order=DRAW_CLUTTER, show_labels=False))
             self.scalar("detection/static", int(static.sum()))
         m = result.measurements
         ids = [x.track_id for x in m]
         rec.log("camera/centroids", rr.Points2D(
             np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
-            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5,
+            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, draw_order=DRAW_TRACKS,
             show_labels=False))
         confirmed = result.confirmed_ids
         for x in m:

@@ -6,7 +6,9 @@ import colorsys
 import functools
 import warnings
 from collections import deque
+from collections.abc import Sequence
 from pathlib import Path
+from typing import Any
 
 import numpy as np
 import pyarrow as pa
@@ -15,20 +17,37 @@ import rerun.blueprint as rrb
 
 from wfviz.evaluate import FrameErrors
 from wfviz.io.clip import ClipNote, display
+from wfviz.explain.types import FrameExplanation
 from wfviz.io.frames import Frame
+from wfviz.record.evidence import (DRAW_BAD_PIXELS, DRAW_DETECTIONS, DRAW_SEARCH_REGION, DRAW_TRACKS, DRAW_TRUTH,
+                                   FALSE_TRACK_COLOR, MISSED_COLOR, Color, ExplanationLog, TestLog, cause_legend,
+                                   class_context)
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
 from wfviz.record.live import LiveMirror, live_sink
 from wfviz.record_options import RecorderOptions
 from wfviz.stages.front_end import FrontEndResult
 from wfviz.stages.horizon import horizon_confident
+from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrameResult, FrontEndTrackResult
 from wfviz.tracking import EventKind
+from wfviz.tracking.tracks import Prediction
 
 APPLICATION_ID = "wfviz"
 TENTATIVE_COLOR = (150, 150, 150, 90)
 DETECTION_COLOR = (255, 200, 0, 255)
 TRUTH_COLOR = (255, 255, 255, 200)
 TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
+TRUTH_RADIUS = -2.0  # UI points (a fixed size on screen): zoomed in, the prediction and the detection show around it
+BAD_PIXEL_COLOR = (255, 60, 60)
+HORIZON_COLOR, HORIZON_IGNORED_COLOR = (0, 255, 120), (120, 120, 120)
+NOT_SEARCHED_COLOR = (30, 70, 255, 140)
+#: defect pixels replaced in a frame above this share of it: a WARN line (once per onset)
+DEFECTS_WARN_SHARE = 0.001
+#: the legend (``legend``): rows LEGEND_STEP apart, from y = 0, shown in a view LEGEND_ROWS rows
+#: high and 2 x LEGEND_WIDTH wide (scene units: the labels keep their size on screen)
+LEGEND_STEP, LEGEND_ROWS, LEGEND_WIDTH = 10.0, 26, 12.0
+#: confirmed predictions closer than this (px) share one label ("2+3 meet"), which would overlap
+LABEL_MERGE_PX = 8.0
 EVENT_LEVELS = {EventKind.BORN: "DEBUG", EventKind.DELETED: "WARN"}  # others INFO; a tentative track's deletion: DEBUG
 
 
@@ -56,6 +75,30 @@ def track_colors(ids: list[int], confirmed: list[bool] | None = None) -> np.ndar
 
 
 MASK_COLOR = (255, 0, 255, 70)
+#: legend names of per-frame series (the last part of the path otherwise); per-track and
+#: per-target series are named by :func:`series_name`
+SERIES_NAMES = {
+    "detection/count": "detections", "detection/threshold": "threshold", "detection/noise_sigma": "noise σ (median)",
+    "detection/static": "static clutter", "detection/global": "global detection (1/0)",
+    "registration/dx": "dx (px)", "registration/dy": "dy (px)", "registration/moving": "moving (1/0)",
+    "registration/corners": "corners agreeing", "registration/confidence": "confidence (0-1)",
+    "registration/residual": "flow residual (px)", "defects/count": "defect pixels replaced",
+    "eval/missed": "missed", "eval/false_alarms": "false alarms", "tracks/confirm_level": "confirmation level",
+}
+
+
+def series_name(path: str) -> tuple[str, Color | None] | None:
+    """The legend name (and colour) of the series at ``path``: ``track N`` in the track's colour for
+    per-track series (``kalman/N/…``, ``fusion/N/…``, ``tbd/N/…``), the stage for ``timing/<stage>``,
+    :data:`SERIES_NAMES`; None: Rerun's default (the path below the view's origin)."""
+    if path in SERIES_NAMES:
+        return SERIES_NAMES[path], None
+    parts = path.split("/")
+    if parts[0] == "timing" and len(parts) == 2:
+        return parts[1], None
+    if parts[0] in ("kalman", "fusion", "tbd") and len(parts) == 3 and parts[1].isdigit():
+        return f"track {parts[1]}", track_color(int(parts[1]))
+    return None
 # The .rrd writer keeps a few KB per chunk in memory until the file closes, so a long clip must
 # not make many chunks: rows are batched for up to 10 s or 16 MiB (Rerun's default: 0.2 s,
 # 2 MiB) and per-track series go through ColumnBuffer. With Rerun's defaults memory grew to
@@ -103,9 +146,35 @@ def bar_chart_columns(values: np.ndarray, colors: np.ndarray) -> list[rr.Compone
     return [rr.ComponentColumn(desc, ArrowBatch(tensor)), rr.ComponentColumn(color_desc, ArrowBatch(rgba))]
 
 
+def prediction_labels(preds: Sequence[Prediction], xy: np.ndarray) -> list[str]:
+    """Labels of the predictions: a confirmed track's id (``N meet`` in meeting mode), "" for a
+    tentative track; confirmed tracks closer than :data:`LABEL_MERGE_PX` share the first one's
+    label (``2+3 meet``), as their labels would overlap."""
+    labels = [(f"{p.track_id}" + (" meet" if p.meeting else "")) if p.confirmed else "" for p in preds]
+    conf = [k for k, p in enumerate(preds) if p.confirmed]
+    if len(conf) < 2:
+        return labels
+    pts = xy[conf].astype(np.float64)
+    close = np.hypot(*(pts[:, None, :] - pts[None, :, :]).transpose(2, 0, 1)) < LABEL_MERGE_PX
+    done: set[int] = set()
+    for a in range(len(conf)):
+        if a in done:
+            continue
+        group = [b for b in range(a, len(conf)) if close[a, b] and b not in done]
+        if len(group) > 1:
+            done.update(group)
+            members = [preds[conf[b]] for b in group]
+            labels[conf[a]] = "+".join(str(p.track_id) for p in members) + (
+                " meet" if any(p.meeting for p in members) else "")
+            for b in group[1:]:
+                labels[conf[b]] = ""
+    return labels
+
+
 def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
     """Non-imaging mask and imaging circle (static, when they change), flagged bad pixels and
-    the horizon (when re-estimated), from the front end's result ``front``."""
+    the horizon (when re-estimated), from the front end's result ``front``. The circle's and the
+    horizon's labels show on hover only (drawn, they sat in the middle of the sky over tracks)."""
     if front.mask_changed:
         rec.log("camera/mask", rr.AnnotationContext([
             rr.ClassDescription(info=rr.AnnotationInfo(id=0, label="imaging", color=(0, 0, 0, 0))),
@@ -116,22 +185,35 @@ def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
         a = np.linspace(0, 2 * np.pi, 181)
         rec.log("camera/imaging_circle", rr.LineStrips2D(
             [np.column_stack([c.cx + c.radius * np.cos(a), c.cy + c.radius * np.sin(a)])] if c else [],
-            labels=[f"R={c.radius:.1f} confidence {c.confidence:.2f}"] if c else None, colors=MASK_COLOR[:3],
-            radii=0.5), static=True)
+            labels=[f"imaging circle R={c.radius:.1f} confidence {c.confidence:.2f}"] if c else None,
+            colors=MASK_COLOR[:3], radii=0.5, show_labels=False), static=True)
         rec.log("geometry/circle_confidence", rr.Scalars(float(c.confidence) if c else 0.0))
     if front.bad_pixels_changed:
         bp = front.bad_pixels
         rec.log("camera/bad_pixels", rr.Points2D(bp[:, ::-1].astype(np.float32) if len(bp) else np.zeros((0, 2)),
-                                                 colors=(255, 60, 60), radii=2.0))
+                                                 class_ids=1, colors=BAD_PIXEL_COLOR, radii=2.0,
+                                                 draw_order=DRAW_BAD_PIXELS, show_labels=False))
     if front.horizon_updated:
         h = front.horizon
         line = h.polyline() if h is not None else None
         used = horizon_confident(h)
-        label = None if h is None else [f"confidence {h.confidence:.2f} ({'used' if used else 'ignored'})"]
+        label = None if h is None else [f"horizon confidence {h.confidence:.2f} ({'used' if used else 'ignored'})"]
         rec.log("camera/horizon", rr.LineStrips2D(
             [line] if line is not None and len(line) else [], labels=label if line is not None and len(line) else None,
-            colors=(0, 255, 120) if used else (120, 120, 120), radii=0.8))
+            colors=HORIZON_COLOR if used else HORIZON_IGNORED_COLOR, radii=0.8, show_labels=False))
         rec.log("geometry/horizon_confidence", rr.Scalars(float(h.confidence) if h is not None else 0.0))
+
+
+#: the entities that are images of the frame (raw, stage and map images, masks)
+IMAGE_ENTITIES = ("camera/image", "camera/mask", "camera/search_region", "suppressed/image", "suppressed/noise")
+
+
+def pixel_centres(rec: Any, paths: tuple[str, ...] = IMAGE_ENTITIES) -> None:
+    """Put each image's pixel (i, j) at (i, j) of the view: Rerun draws it over [i, i + 1] x
+    [j, j + 1], the overlays use the project's convention (x = column, y = row, origin at the
+    centre of the top-left pixel), so every image is moved by half a pixel (static)."""
+    for path in paths:
+        rec.log(path, rr.Transform3D(translation=[-0.5, -0.5, 0.0]), static=True)
 
 
 class ColumnBuffer:
@@ -144,6 +226,7 @@ class ColumnBuffer:
     def __init__(self, rec: rr.RecordingStream, frames: int = 1024, bar_frames: int = 4096) -> None:
         self.rec, self.frames, self.bar_frames = rec, frames, bar_frames
         self._scalars: dict[str, tuple[list[int], list[float], list[float]]] = {}
+        self._pairs: dict[str, tuple[list[int], list[float], list[float]]] = {}  # two series per entity
         self._texts: dict[str, tuple[list[int], list[float], list[str], list[str]]] = {}
         self._bars: dict[str, _BarRows] = {}
         self._pending = self._bar_pending = 0
@@ -153,6 +236,14 @@ class ColumnBuffer:
         f.append(frame)
         t.append(time)
         v.append(value)
+
+    def pair(self, path: str, frame: int, time: float, a: float, b: float) -> None:
+        """Two series in one entity (a ``Scalars`` row of two values): one chunk where two
+        entities would make two (per-track series of many tracks)."""
+        f, t, v = self._pairs.setdefault(path, ([], [], []))
+        f.append(frame)
+        t.append(time)
+        v += (a, b)
 
     def text(self, path: str, frame: int, time: float, text: str, level: str) -> None:
         f, t, x, lv = self._texts.setdefault(path, ([], [], [], []))
@@ -179,9 +270,13 @@ class ColumnBuffer:
         """Send the scalars and lines held (and the bar charts, with ``bars``)."""
         for path, (f, t, v) in self._scalars.items():
             self.rec.send_columns(path, indexes=time_columns(f, t), columns=rr.Scalars.columns(scalars=v))
+        for path, (f, t, v) in self._pairs.items():
+            self.rec.send_columns(path, indexes=time_columns(f, t),
+                                  columns=rr.Scalars.columns(scalars=v).partition(np.full(len(f), 2)))
         for path, (f, t, x, lv) in self._texts.items():
             self.rec.send_columns(path, indexes=time_columns(f, t), columns=rr.TextLog.columns(text=x, level=lv))
         self._scalars.clear()
+        self._pairs.clear()
         self._texts.clear()
         self._pending = 0
         if bars:
@@ -254,6 +349,11 @@ class Recorder:
         run is streamed to a viewer or served as well as written to the file
         (:mod:`wfviz.record.live`)."""
         live = options.live
+        # evidence (read by the blueprint, below)
+        self._series: set[str] = set()  # series paths seen (named, when they have a name)
+        self._legend: dict[str, Color] = {}
+        self.tests = TestLog(self)
+        self.explanation = ExplanationLog(self, self._explanation_started)
         self._file: rr.RecordingStream | None = None
         if stream is None:
             self._file = rr.RecordingStream(APPLICATION_ID, batcher_config=BATCHER)
@@ -274,7 +374,12 @@ class Recorder:
         self._live_ended = False
         self.shared_images = shared_images
         self.images = ImageLog(self.rec, options.image_every, options.exact_every, options.jpeg_quality)
-        self._noise_logged: object | None = None  # the noise estimate last logged as an image
+        pixel_centres(self.rec)
+        self._region_logged: np.ndarray | None = None  # the search region last logged
+        self._front_started = False
+        self._motion_lost = False
+        self._defects_replaced = 0  # flagged at the end of the last frame: replaced in this one
+        self._defects_high = False
         self._trails: dict[int, deque] = {}
         self._trail_length = options.trail_length
         self._labelled: set[int] = set()
@@ -285,6 +390,17 @@ class Recorder:
         self.rec.log("config", rr.TextDocument(
             f"# wfviz {tracker}\n\nSource: `{display(options.source)}`\n\n```toml\n{options.config_text}\n```",
             media_type=rr.MediaType.MARKDOWN), static=True)
+        self.rec.log("camera/detections", class_context([(1, "detection", DETECTION_COLOR)]), static=True)
+        self.rec.log("camera/truth", class_context([(1, "truth", TRUTH_COLOR), (2, "truth, hidden (don't care)",
+                                                                                TRUTH_HIDDEN_COLOR)]), static=True)
+        self.add_legend([("detection", DETECTION_COLOR), ("truth", TRUTH_COLOR),
+                         ("truth, hidden", TRUTH_HIDDEN_COLOR), ("tentative track", TENTATIVE_COLOR[:3]),
+                         ("confirmed track", track_color(1))])
+
+    @property
+    def now(self) -> tuple[int, float]:
+        """The (frame, time) being logged."""
+        return self._now
 
     # -- layout ---------------------------------------------------------------------------
     def blueprint(self, track_ids: list[int] | None = None) -> rrb.Blueprint:
@@ -294,14 +410,15 @@ class Recorder:
         """
         return rrb.Blueprint(
             rrb.Horizontal(
-                rrb.Vertical(*self.image_views()),
+                rrb.Horizontal(rrb.Vertical(*self.image_views()), self.legend_view(), column_shares=[4, 1]),
                 rrb.Vertical(
-                    rrb.Tabs(*self.series_views()),
+                    rrb.Tabs(*self.series_views(), *self.explanation_views(track_ids)),
                     self.track_views(track_ids),
                     rrb.Tabs(rrb.TextLogView(origin="log", name="Track log", rows=rrb.archetypes.TextLogRows(
                                  filter_by_log_level=["INFO", "WARN", "ERROR"])),  # DEBUG: tentative tracks
                              rrb.TextDocumentView(origin="config", name="Config"),
                              rrb.TextDocumentView(origin="eval/summary", name="Scores")),
+                    row_shares=[5, 3, 3],  # the stage-time legend (12 series) needs the height
                 ),
                 column_shares=[3, 2],
             ),
@@ -311,17 +428,51 @@ class Recorder:
         )
 
     def image_views(self) -> list[rrb.View]:
-        """Left column: the raw frame with overlays above the stage image."""
-        return [rrb.Spatial2DView(origin="camera", name="Camera + overlays"),
+        """Left column: the raw frame with overlays (sensor defects hidden: tick them in the
+        blueprint panel) above the stage image."""
+        return [rrb.Spatial2DView(origin="camera", name="Camera + overlays",
+                                  overrides={"/camera/bad_pixels": rrb.EntityBehavior(visible=False)}),
                 rrb.Spatial2DView(origin="suppressed", name="Background-suppressed",
                                   contents=["$origin/**", "/camera/detections", "/camera/gates",
                                             "/camera/predictions"])]
 
+    @staticmethod
+    def legend_view() -> rrb.View:
+        """The overlays' colours and what they mean (``legend``), a narrow column beside the images."""
+        return rrb.Spatial2DView(origin="legend", name="Legend", background=(20, 20, 20),
+                                 visual_bounds=rrb.VisualBounds2D(x_range=[-LEGEND_WIDTH, LEGEND_WIDTH],
+                                                                  y_range=[-LEGEND_STEP, LEGEND_STEP * LEGEND_ROWS]))
+
     def series_views(self) -> list[rrb.View]:
         """Right column, top tabs: per-frame series."""
         return [rrb.TimeSeriesView(origin="timing", name="Stage time (ms)"),
-                rrb.TimeSeriesView(origin="detection", name="Detections"),
+                rrb.TimeSeriesView(origin="detection", name="Detections", contents=["$origin/**", "/defects/**"]),
                 rrb.TimeSeriesView(origin="eval", name="Errors vs truth")]
+
+    @staticmethod
+    def motion_views() -> list[rrb.View]:
+        """The camera's motion and how well it was measured (trackers on the shared front end)."""
+        return [rrb.TimeSeriesView(origin="registration", name="Camera motion",
+                                   contents=["$origin/**", "- /registration/corners"])]
+
+    def explanation_views(self, track_ids: list[int] | None) -> list[rrb.View | rrb.Container]:
+        """Once an explanation was logged (known when the recording closes): each truth target's
+        significance, change and threshold (σ), one view per target (at most 12)."""
+        targets = sorted(self.explanation.targets)[:12]
+        if track_ids is None or not targets:
+            return []
+        return [rrb.Tabs(*[rrb.TimeSeriesView(origin=f"explain/T{i}", name=f"Truth T{i} (σ)") for i in targets],
+                         name="Why missed (σ)")]
+
+    def test_views(self, track_ids: list[int]) -> list[rrb.View | rrb.Container]:
+        """One view per confirmation or deletion test: its value and level for each confirmed track
+        (``tests/<id>/<test>``), grouped in a tab "Track tests"."""
+        tests = sorted(self.tests.views(), key=lambda t: t[0] == "hit this frame")  # the trivial one last
+        if not tests or not track_ids:
+            return []
+        return [rrb.Tabs(*[rrb.TimeSeriesView(origin="tests", name=f"Test: {name}",
+                                              contents=[f"/tests/{i}/{slug}" for i in track_ids]) for name, slug in tests],
+                         name="Track tests")]
 
     def track_views(self, track_ids: list[int] | None) -> rrb.View | rrb.Container:
         """Per-track views (right column, middle); overridden by tracker adapters."""
@@ -358,8 +509,43 @@ class Recorder:
             self.images.log(path, image, value_map=value_map)
 
     def scalar(self, path: str, value: float) -> None:
-        """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`)."""
+        """A ``Scalars`` value at the current frame (sent in columns, see :class:`ColumnBuffer`);
+        a new series is named for its legend (:func:`series_name`)."""
+        if path not in self._series:
+            self._series.add(path)
+            named = series_name(path)
+            if named is not None:
+                self.name_series(path, named[0], named[1])
         self.columns.scalar(path, *self._now, float(value))
+
+    def name_series(self, path: str, name: str | list[str], color: Color | list[Color] | None = None,
+                    width: float | list[float] | None = None) -> None:
+        """The legend name (and colour, line width) of the series at ``path``, or of each of its
+        series given lists (static ``SeriesLines``)."""
+        self._series.add(path)
+        colors = [c[:3] for c in color] if isinstance(color, list) else color[:3] if color else None
+        self.rec.log(path, rr.SeriesLines(names=name, colors=colors, widths=width), static=True)
+
+    def add_legend(self, entries: list[tuple[str, Color]]) -> None:
+        """Add (label, colour) rows to the legend (``legend``, static: re-logged whole when rows are added)."""
+        new = [(label, color) for label, color in entries if label not in self._legend]
+        if not new:
+            return
+        self._legend.update(new)
+        n = len(self._legend)
+        self.rec.log("legend", rr.Points2D(
+            np.column_stack([np.zeros(n), LEGEND_STEP * np.arange(n)]).astype(np.float32),
+            colors=np.array([(*c[:3], 255) for c in self._legend.values()], dtype=np.uint8),
+            labels=list(self._legend), radii=0.01, show_labels=True), static=True)
+
+    def log_explanation(self, expl: FrameExplanation) -> None:
+        """This frame's explanation (:mod:`wfviz.explain`): each truth target's significance, change
+        and threshold (``explain/T<id>/…``), its cause as a marker (``camera/causes``), the misses
+        (``camera/misses``) and false tracks (``camera/false_tracks``), as ``wfviz compare`` marks them."""
+        self.explanation.log(expl)
+
+    def _explanation_started(self) -> None:
+        self.add_legend(cause_legend() + [("missed (mark)", MISSED_COLOR), ("false track (mark)", FALSE_TRACK_COLOR)])
 
     def bar(self, path: str, values: np.ndarray, color: tuple[int, int, int]) -> None:
         """A ``BarChart`` at the current frame (sent in columns)."""
@@ -385,33 +571,88 @@ class Recorder:
 
     def log_front_end(self, result: FrontEndTrackResult, images: bool) -> None:
         """What the trackers on the shared front end (:mod:`wfviz.stages.front_end`) report in
-        common: the scene geometry (:func:`log_geometry`), the noise map (``suppressed/noise``,
-        with the images), the camera motion (``registration/*``) and the sequential test's
-        levels (``tracks/*``)."""
-        log_geometry(self.rec, result.front)
-        noise = result.front.noise
+        common: the scene geometry (:func:`log_geometry`), the sensor defects replaced
+        (``defects/count``), the noise map (``suppressed/noise``) and the search region
+        (``camera/search_region``) on exact frames, the camera motion (``registration/*``) and the
+        sequential test's levels (``tracks/*``)."""
+        front = result.front
+        if not self._front_started:
+            self._front_started = True
+            self._front_end_classes()
+        log_geometry(self.rec, front)
+        self._log_defects(front)
+        # on exact frames (on image frames with previews only); half precision: a smooth map
+        due = self.images.exact if self.images.exact_every else images
+        noise = front.noise
         if noise is not None:
-            # on exact frames (on image frames with previews only), when re-estimated since it was
-            # last logged (the viewer shows the latest); half precision: a smooth map. Every
-            # renewal (each noise.every frames) was half the demo's recording and a chunk each
-            due = self.images.exact if self.images.exact_every else images
-            if due and noise is not self._noise_logged:
+            if due:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), value_map=True)
-                self._noise_logged = noise
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
-        camera = result.front.camera
-        if camera is not None:
-            self.scalar("registration/dx", camera.shift[0])
-            self.scalar("registration/dy", camera.shift[1])
-            self.scalar("registration/moving", 1.0 if camera.moving else 0.0)
+        if due:
+            self._log_search_region(front)
+        if front.camera is not None:
+            self._log_motion(front.camera)
         th = result.thresholds
         if th is not None:
             self.scalar("tracks/confirm_level", th.confirm)
 
+    def _front_end_classes(self) -> None:
+        """Class tables (labels on hover) and legend rows of the front end's overlays."""
+        rec = self.rec
+        rec.log("camera/bad_pixels", class_context([(1, "sensor defect (replaced)", BAD_PIXEL_COLOR)]), static=True)
+        rec.log("camera/search_region", class_context([
+            (0, "searched", (0, 0, 0, 0)), (1, "not searched (below the horizon, outside the windows)",
+                                            NOT_SEARCHED_COLOR)]), static=True)
+        self.add_legend([("non-imaging", MASK_COLOR), ("imaging circle", MASK_COLOR), ("horizon, used", HORIZON_COLOR),
+                         ("horizon, ignored", HORIZON_IGNORED_COLOR), ("not searched", NOT_SEARCHED_COLOR[:3]),
+                         ("defect (hidden)", BAD_PIXEL_COLOR)])
+
+    def _log_defects(self, front: FrontEndResult) -> None:
+        """``defects/count``: pixels replaced by their neighbours' median in this frame (those
+        flagged up to the last frame); a WARN line when they exceed :data:`DEFECTS_WARN_SHARE` of
+        the frame, once each time they rise above it."""
+        n = self._defects_replaced
+        self._defects_replaced = len(front.bad_pixels)
+        self.scalar("defects/count", n)
+        limit = DEFECTS_WARN_SHARE * front.image.size
+        if n > limit and not self._defects_high:
+            self.text(f"{n} pixels replaced as sensor defects ({100 * n / front.image.size:.2f} % of the frame, "
+                      f"more than {100 * DEFECTS_WARN_SHARE:g} %)", "WARN")
+        self._defects_high = n > limit
+
+    def _log_search_region(self, front: FrontEndResult) -> None:
+        """``camera/search_region``: the imaging pixels not searched (class 1), when it changed."""
+        region = front.region
+        if self._region_logged is not None and np.array_equal(region, self._region_logged):
+            return
+        self._region_logged = region.copy()
+        self.rec.log("camera/search_region", rr.SegmentationImage(
+            (front.valid & ~region).view(np.uint8), draw_order=DRAW_SEARCH_REGION))
+
+    def _log_motion(self, camera: CameraState) -> None:
+        """``registration/*``: the shift (NaN when the flow was lost: unknown, never "still"), whether
+        the camera moves, the corners that agreed, the confidence and the flow's residual; a WARN line
+        when the motion is lost and when it is measured again (filtering WARN shows both ends)."""
+        reliable = camera.reliable
+        self.scalar("registration/dx", camera.shift[0] if reliable else np.nan)
+        self.scalar("registration/dy", camera.shift[1] if reliable else np.nan)
+        self.scalar("registration/moving", 1.0 if camera.moving else 0.0)
+        self.scalar("registration/corners", camera.corners)
+        self.scalar("registration/confidence", camera.confidence)
+        self.scalar("registration/residual", camera.residual)
+        if not reliable and not self._motion_lost:
+            self.text(f"camera motion lost: {camera.corners} corners agreed on the flow; the camera's shift is "
+                      "unknown (tracks are not moved)", "WARN")
+        elif reliable and self._motion_lost:
+            self.text(f"camera motion measured again: {camera.corners} corners agree "
+                      f"(confidence {camera.confidence:.2f})", "WARN")
+        self._motion_lost = not reliable
+
     def _log_common(self, result: FrameResult) -> None:
         rec = self.rec
         d = result.detections
-        points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR)
+        points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR, class_ids=1,
+                             draw_order=DRAW_DETECTIONS, show_labels=False)
         if len(d):  # hover values; an empty AnyValues batch only draws a warning
             extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
                 ("significance", d.significance), ("change", d.change), ("blobness", d.blobness))
@@ -428,16 +669,16 @@ class Recorder:
         ids = [p.track_id for p in preds]
         conf = np.array([p.confirmed for p in preds], dtype=bool)
         colors = track_colors(ids, conf.tolist())
-        labels = [(f"{p.track_id}" + (" meet" if p.meeting else "")) if p.confirmed else ""
-                  for p in preds]
         geo = np.array([(p.x, p.y, p.half_w, p.half_h) for p in preds], dtype=np.float32).reshape(-1, 4)
+        labels = prediction_labels(preds, geo[:, :2])
         cids = class_ids(ids)
+        # the labels are drawn under the gates (a point's would cover its target), on hover on the points
         rec.log("camera/predictions", rr.Points2D(
             geo[:, :2], class_ids=cids, colors=colors, labels=labels,
-            radii=np.where(conf, 1.5, 0.7).astype(np.float32), show_labels=True))
+            radii=np.where(conf, 1.5, 0.7).astype(np.float32), draw_order=DRAW_TRACKS, show_labels=False))
         rec.log("camera/gates", rr.Boxes2D(
-            centers=geo[:, :2], half_sizes=geo[:, 2:], class_ids=cids, colors=colors,
-            radii=np.where(conf, 0.5, 0.2).astype(np.float32), show_labels=False))
+            centers=geo[:, :2], half_sizes=geo[:, 2:], class_ids=cids, colors=colors, labels=labels,
+            radii=np.where(conf, 0.5, 0.2).astype(np.float32), show_labels=True))
         self._log_trails(result)
         for stage, ms in result.timings.items():
             self.scalar(f"timing/{stage}", ms)
@@ -447,6 +688,8 @@ class Recorder:
             if e.kind == EventKind.DELETED and e.track_id not in confirmed:
                 level = "DEBUG"
             self.text(e.message, level)
+        if result.verdicts is not None:
+            self.tests.log(result.verdicts, result.tracks)
 
     def _log_trails(self, result: FrameResult) -> None:
         live = set()
@@ -481,8 +724,11 @@ class Recorder:
         self.rec.log("camera/truth", rr.Points2D(
             [[x, y] for _, x, y in pts] if pts else np.zeros((0, 2)),
             labels=[f"T{i}" for i, _, _ in shown] + [f"T{i} hidden" for i, _, _ in hidden],
+            class_ids=np.array([1] * len(shown) + [2] * len(hidden), dtype=np.uint16),
             colors=[TRUTH_COLOR] * len(shown) + [TRUTH_HIDDEN_COLOR] * len(hidden),
-            radii=3.0, show_labels=False))
+            radii=TRUTH_RADIUS, draw_order=DRAW_TRUTH, show_labels=False))
+        if "eval/cle" not in self._series:
+            self.name_series("eval/cle", "CLE (px)")
         self.rec.log("eval/cle", rr.Scalars(errors.cle_mean))
         self.scalar("eval/missed", errors.missed)
         self.scalar("eval/false_alarms", errors.false_alarms)
@@ -497,7 +743,7 @@ class Recorder:
         self.text(text, level)
 
     def close(self) -> None:
-        """Send the final default blueprint (per-track views), flush and close the file (a
+        """Send the final default blueprint (per-track and per-target views), flush and close the file (a
         recorder writing into another's ``stream`` only sends what it holds). A live view is
         still open then: :meth:`end_live` closes it (after the file is renamed into place)."""
         self.images.close()
@@ -505,7 +751,7 @@ class Recorder:
         if self._file is None:
             return
         ids = sorted(self.confirmed_ids)
-        if ids:
+        if ids or self.explanation.targets:  # the per-track and per-target views
             self.rec.send_blueprint(self.blueprint(ids), make_active=True, make_default=True)
         self._file.flush()
         self._file.disconnect()

@@ -71,10 +71,10 @@ class Shot:
 def crop_bounds(x: float, y: float, zoom: float, size: tuple[int, int]) -> Bounds:
     """Bounds that show ``width/zoom`` by ``height/zoom`` image pixels (``size`` = (width,
     height)) centred on image point (``x``, ``y``): x = column, y = row, origin at the centre
-    of the top-left pixel. Rerun draws pixel (i, j) over [i, i+1] x [j, j+1], so that point is
-    (x + 0.5, y + 0.5) in its scene."""
+    of the top-left pixel, which is (x, y) in the view: wfviz's recordings place each image's
+    pixel centres on integer coordinates (:func:`wfviz.record.recorder.pixel_centres`)."""
     half_w, half_h = size[0] / zoom / 2, size[1] / zoom / 2
-    cx, cy = x + 0.5, y + 0.5
+    cx, cy = x, y
     return (cx - half_w, cx + half_w, cy - half_h, cy + half_h)
 
 
@@ -568,6 +568,12 @@ def _is_2d_view(entry: Any) -> bool:
     return isinstance(entry, dict) and entry.get("ViewBlueprint", {}).get("class_identifier") == "2D"
 
 
+def _is_legend(entry: dict[str, Any]) -> bool:
+    """The recording's legend view (origin ``legend``): a key, not the image, never cropped."""
+    view = entry.get("ViewBlueprint", {})
+    return str(view.get("space_origin", "")).strip("/") == "legend" or view.get("display_name") == "Legend"
+
+
 def _blueprint(
     client: ViewerClient, proc: subprocess.Popen[bytes], store_id: str, deadline: float, log: IO[bytes],
 ) -> dict[str, Any]:
@@ -590,7 +596,7 @@ def _with_bounds(blueprint: dict[str, Any], bounds: Bounds | None) -> dict[str, 
     x0, x1, y0, y1 = bounds
     out = dict(blueprint)
     for path, entry in blueprint.items():
-        if _is_2d_view(entry):
+        if _is_2d_view(entry) and not _is_legend(entry):
             out[f"{path}/VisualBounds2D"] = {"VisualBounds2D": {"range": {"x_range": [x0, x1], "y_range": [y0, y1]}}}
     return out
 

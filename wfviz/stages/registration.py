@@ -16,7 +16,10 @@ or fewer than half the corners remain.
 Until the offset has once exceeded ``still`` px the camera counts as *still* (the estimate of
 a still camera wanders by a few hundredths of a pixel); stages that treat the two cases
 differently read ``moving``. With fewer than ``min_corners`` corners agreeing, the shift is
-*unknown* and the last offset is kept.
+*unknown* and the last offset is kept (``reliable`` False: the tracker then moves nothing, and the
+recording shows the shift as unknown, never as still). ``confidence`` (the share of the key
+frame's corners that agreed) and ``residual`` (their flows' spread) say how well it was measured;
+the tracker does not read them.
 """
 
 from __future__ import annotations
@@ -36,13 +39,18 @@ class CameraState:
     """``offset``: a scene point of the first frame appears at ``xy + offset`` now; ``shift``:
     the change of offset since the previous frame; ``moving``: the camera has moved more than
     ``still`` px since the first frame; ``corners``: corners that agreed on this frame's flow;
-    ``reliable``: the flow was measured (enough corners agreed)."""
+    ``reliable``: the flow was measured (enough corners agreed; when not, ``shift`` is 0 and the
+    motion is unknown); ``confidence``: the share of the key frame's corners that agreed, in
+    [0, 1] (0 when not reliable; 1 on the first frame, which sets the origin); ``residual``: RMS
+    distance (px) of the agreeing corners' flows from their mean (NaN when not reliable)."""
 
     offset: tuple[float, float]
     shift: tuple[float, float]
     moving: bool
     corners: int
     reliable: bool
+    confidence: float = 1.0
+    residual: float = 0.0
 
 
 class CameraMotion:
@@ -87,7 +95,7 @@ class CameraMotion:
             self._key, self._range = None, None  # new frame size: start again
         if self._key is None:
             self._set_key(self._grey(image))
-            return self._state(before, 0, True)
+            return self._state(before, 0, True, 1.0, 0.0)
         g = self._grey(image)
         agreed = 0
         if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
@@ -102,18 +110,22 @@ class CameraMotion:
                 inl = np.hypot(*(d - med).T) < 1.0
                 agreed = int(inl.sum())
                 if agreed >= self.min_corners:
-                    shift = d[inl].mean(axis=0) * self._scale
+                    mean = d[inl].mean(axis=0)
+                    shift = mean * self._scale
+                    confidence = min(1.0, agreed / len(self._key_pts))
+                    residual = float(np.sqrt(np.mean(np.sum((d[inl] - mean) ** 2, axis=1)))) * self._scale
                     self.offset = self._key_offset + shift
                     if not self.moving and np.hypot(*self.offset) > self.still:
                         self.moving = True
                     if np.hypot(*shift) > self.rekey or agreed < 0.5 * len(self._key_pts):
                         self._set_key(g)
-                    return self._state(before, agreed, True)
+                    return self._state(before, agreed, True, confidence, residual)
         if self.moving:  # lost the key frame's corners: start a new key frame here
             self._set_key(g)
-        return self._state(before, agreed, False)
+        return self._state(before, agreed, False, 0.0, float("nan"))
 
-    def _state(self, before: np.ndarray, corners: int, reliable: bool) -> CameraState:
+    def _state(self, before: np.ndarray, corners: int, reliable: bool, confidence: float,
+               residual: float) -> CameraState:
         shift = self.offset - before
         return CameraState((float(self.offset[0]), float(self.offset[1])),
-                           (float(shift[0]), float(shift[1])), self.moving, corners, reliable)
+                           (float(shift[0]), float(shift[1])), self.moving, corners, reliable, confidence, residual)
