@@ -194,8 +194,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     clip's :meth:`truth_points`) and ``on_frame``. With truth, the causes of the misses and false
     tracks (:mod:`wfviz.explain`) go to the recording, to ``explain`` (``EXPLAIN.csv`` and
     ``EXPLAIN-false.csv``) and, summarised, to the summary's facts (an
-    :class:`~wfviz.explain.report.ExplainSummary`); without a recording or ``explain`` they are
-    not computed.
+    :class:`~wfviz.explain.report.ExplainSummary`); without truth nothing is computed.
 
     Outputs are written to unique temporary files beside them
     (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends; on a signal the frames
@@ -213,10 +212,9 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     openers: list[Callable[[], Sink]] = []
     if truth is not None:
         openers.append(lambda: ScoreSink(truth, gate))
-        if explain is not None or recording is not None:
-            from wfviz.explain.sink import ExplainSink
+        from wfviz.explain.sink import ExplainSink
 
-            openers.append(lambda: ExplainSink(truth, gate, tracker.name, tracker.config, explain))
+        openers.append(lambda: ExplainSink(truth, gate, tracker.name, tracker.config, explain))
     if tracks_csv is not None:
         openers.append(lambda: TracksSink(tracks_csv))
     if recording is not None:

@@ -374,7 +374,8 @@ class Recorder:
         self._live_ended = False
         self.shared_images = shared_images
         self.images = ImageLog(self.rec, options.image_every, options.exact_every, options.jpeg_quality)
-        pixel_centres(self.rec)
+        pixel_centres(self.rec, tuple(p for p in IMAGE_ENTITIES if p not in shared_images
+                                      and (raw_image or p != "camera/image")))
         self._region_logged: np.ndarray | None = None  # the search region last logged
         self._front_started = False
         self._motion_lost = False
