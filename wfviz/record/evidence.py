@@ -9,19 +9,30 @@ from __future__ import annotations
 import math
 import re
 from collections.abc import Callable, Sequence
-from typing import TYPE_CHECKING
+from typing import Any, Protocol
 
 import numpy as np
 import rerun as rr
 
+from wfviz.record.colors import track_color
 from wfviz.explain.types import MISSES, Cause, FalseCause, FrameExplanation
 from wfviz.tracking.decision import Verdicts
 from wfviz.tracking.tracks import TrackState
 
-if TYPE_CHECKING:
-    from wfviz.record.recorder import Recorder
-
 Color = tuple[int, ...]
+
+
+class Recorder(Protocol):
+    """What the evidence logs through (:class:`wfviz.record.recorder.Recorder`)."""
+
+    rec: Any
+
+    def text(self, message: str, level: str = "INFO", path: str = "log") -> None: ...
+
+    def scalar(self, path: str, value: float) -> None: ...
+
+    def name_series(self, path: str, name: str | list[str], color: Color | list[Color] | None = None,
+                    width: float | list[float] | None = None) -> None: ...
 
 #: wfviz compare's marks (:mod:`wfviz.record.compare`), reused by a single recording's explanation
 MISSED_COLOR: Color = (255, 40, 40)
@@ -97,7 +108,6 @@ def test_slug(name: str) -> str:
 
 def target_color(target_id: int) -> Color:
     """A truth target's series colour (hues apart from the tracks' of the same number)."""
-    from wfviz.record.recorder import track_color
 
     return track_color(target_id * 7 + 3)
 
@@ -195,8 +205,7 @@ class TestLog:
 
     def _name(self, tid: int, slugs: list[str]) -> None:
         """Name a confirmed track's series (its value and level per test)."""
-        from wfviz.record.recorder import track_color
-
+    
         self.named.add(tid)
         color = track_color(tid)
         for slug in slugs:

@@ -2,7 +2,6 @@
 
 from __future__ import annotations
 
-import colorsys
 import functools
 import warnings
 from collections import deque
@@ -22,6 +21,7 @@ from wfviz.io.frames import Frame
 from wfviz.record.evidence import (DRAW_BAD_PIXELS, DRAW_DETECTIONS, DRAW_SEARCH_REGION, DRAW_TRACKS, DRAW_TRUTH,
                                    FALSE_TRACK_COLOR, MISSED_COLOR, Color, ExplanationLog, TestLog, cause_legend,
                                    class_context)
+from wfviz.record.colors import track_color
 from wfviz.record.images import ArrowBatch, ImageLog, time_columns
 from wfviz.record.live import LiveMirror, live_sink
 from wfviz.record_options import RecorderOptions
@@ -51,12 +51,6 @@ LABEL_MERGE_PX = 8.0
 EVENT_LEVELS = {EventKind.BORN: "DEBUG", EventKind.DELETED: "WARN"}  # others INFO; a tentative track's deletion: DEBUG
 
 
-@functools.lru_cache(maxsize=8192)
-def track_color(track_id: int) -> tuple[int, int, int]:
-    """A stable, well-separated colour for a track id (golden-ratio hue steps)."""
-    h = (track_id * 0.618033988749895) % 1.0
-    r, g, b = colorsys.hsv_to_rgb(h, 0.85, 1.0)
-    return int(r * 255), int(g * 255), int(b * 255)
 
 
 def class_ids(track_ids: list[int]) -> np.ndarray:
