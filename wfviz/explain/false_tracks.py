@@ -71,9 +71,10 @@ class FalseCauses:
         false = [t for t in result.tracks if t.confirmed and t.track_id not in taken]
         false = _off_hidden(false, hidden, self.gate)
         common = self._common_motion(result, false, taken)
+        static = self._static(false)
         out = []
         for t in false:
-            cause, detail = self._cause(result, front, t, shown, matches, common)
+            cause, detail = self._cause(result, front, t, shown, matches, common, static)
             out.append(FalseExplanation(f, t.track_id, t.x, t.y, cause, detail))
         for track, target, _ in matches:
             self._matched[track] = (target, f)
@@ -116,8 +117,23 @@ class FalseCauses:
                                f"unmatched tracks alike: the scene moved")
         return out
 
+    def _static(self, false: list[TrackState]) -> dict[int, tuple[float, int]]:
+        """{track: (spread, positions)} of the false tracks with ``STATIC_MIN`` scene positions or
+        more: the farthest of their last positions from their median (rule 5), in one pass."""
+        rows = [(t.track_id, self._scene[t.track_id]) for t in false
+                if len(self._scene.get(t.track_id, ())) >= STATIC_MIN]
+        if not rows:
+            return {}
+        a = np.full((len(rows), STATIC_FRAMES, 2), np.nan)
+        for k, (_, q) in enumerate(rows):
+            a[k, :len(q)] = q
+        d = a - np.nanmedian(a, axis=1)[:, None, :]
+        spread = np.nanmax(np.hypot(d[..., 0], d[..., 1]), axis=1)
+        return {tid: (float(v), len(q)) for (tid, q), v in zip(rows, spread.tolist())}
+
     def _cause(self, result: FrameResult, front: FrontEndResult | None, t: TrackState, shown: list[Point],
-               matches: tuple[tuple[int, int, float], ...], common: dict[int, str]) -> tuple[FalseCause, str]:
+               matches: tuple[tuple[int, int, float], ...], common: dict[int, str],
+               static: dict[int, tuple[float, int]]) -> tuple[FalseCause, str]:
         for track, target, _ in matches:
             p = next(((x, y) for i, x, y in shown if i == target), None)
             if p is not None and math.hypot(t.x - p[0], t.y - p[1]) <= DUPLICATE_GATES * self.gate:
@@ -139,13 +155,10 @@ class FalseCauses:
                      f"camera motion {'measured now' if cam.reliable else 'lost'}, {cam.corners} corners agreed; "
                      f"not measured on some frame of the track")
             return FalseCause.CAMERA_MOTION, f"{common[t.track_id]} ({state})"
-        scene = self._scene.get(t.track_id)
-        if scene is not None and len(scene) >= STATIC_MIN:
-            pts = np.asarray(scene)
-            spread = float(np.hypot(*(pts - np.median(pts, axis=0)).T).max())
-            if spread <= STATIC_SPREAD:
-                return FalseCause.STATIC_IN_SCENE, (f"fixed in the scene: within {spread:.2f} px of one point over "
-                                                    f"its last {len(pts)} frames (camera motion removed)")
+        spread, n = static.get(t.track_id, (math.inf, 0))
+        if spread <= STATIC_SPREAD:
+            return FalseCause.STATIC_IN_SCENE, (f"fixed in the scene: within {spread:.2f} px of one point over "
+                                                f"its last {n} frames (camera motion removed)")
         structure = _structure(result, front, t)
         if structure:
             return FalseCause.STRUCTURE, structure
