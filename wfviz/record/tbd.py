@@ -55,8 +55,11 @@ class TBDRecorder(Recorder):
         pts = result.particles
         hyp = pts[:, 2].astype(np.int64)
         colors = np.array(HYPOTHESIS_COLORS, dtype=np.uint8)[np.clip(hyp, 0, len(HYPOTHESIS_COLORS) - 1)]
-        rec.log("tbd/particles", rr.Points2D(pts[:, :2], colors=colors, radii=0.25),
-                rr.AnyValues(hypothesis=hyp))
+        points = rr.Points2D(pts[:, :2], colors=colors, radii=0.25)
+        if len(pts):  # an empty AnyValues batch only draws a warning
+            rec.log("tbd/particles", points, rr.AnyValues(hypothesis=hyp))
+        else:
+            rec.log("tbd/particles", points)
         p = result.p_count
         n_log = max(len(p), self._counts_logged)
         for n in range(n_log):
