@@ -234,3 +234,13 @@ def test_every_tracker_gives_every_visible_point_a_cause(tmp_path: Path, tracker
             if r["cause"] == "not_detected":
                 assert "reports no per-pixel significance" in r["detail"], r["detail"]
             assert r["cause"] not in ("outside_region",)
+
+
+def test_track_needs_no_tracks_csv_to_explain_but_something_to_write(tmp_path: Path) -> None:
+    clip, truth = _mixed(tmp_path)
+    r = invoke("track", str(clip), "--truth", str(truth), "--explain", str(tmp_path / "e.csv"))
+    assert r.exit_code == 0, r.output
+    assert "where Pd went" in r.output and (tmp_path / "e.csv").is_file()
+    assert sorted(p.name for p in tmp_path.iterdir()) == ["clip.npy", "e-false.csv", "e.csv", "truth.csv"]
+    r = invoke("track", str(clip))
+    assert r.exit_code == 2 and "nothing to write" in r.output

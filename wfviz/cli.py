@@ -344,7 +344,7 @@ def record(
 @_guarded
 def track(
     clip: ClipArg,
-    tracks: Annotated[Path, typer.Option("--tracks", help="Tracks CSV to write.")],
+    tracks: Annotated[Optional[Path], typer.Option("--tracks", help="Tracks CSV to write (may be left out with --truth: the scores, where Pd went and --explain's files only).", show_default=False)] = None,
     tracker: TrackerOpt = "gewc",
     config: ConfigOpt = None,
     start: StartOpt = 0,
@@ -357,6 +357,8 @@ def track(
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
+    if tracks is None and truth is None:
+        raise ValueError("track: nothing to write: give --tracks FILE (or --truth FILE to score the run)")
     trk = _tracker(tracker, config)
     truth_points = _read_truth(truth)
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
