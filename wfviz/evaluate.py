@@ -150,12 +150,17 @@ class EvalResult:
 
 @dataclass(frozen=True)
 class FrameErrors:
-    """One frame: mean centre error of matches, missed targets, false alarms, (track, target, px)."""
+    """One frame: mean centre error of matches, missed targets, (track, target, px) matches and
+    the ids of the false alarms (tracks matching no visible target, those on hidden ones left out)."""
 
     cle_mean: float
     missed: int
-    false_alarms: int
     matches: tuple[tuple[int, int, float], ...]
+    false_tracks: tuple[int, ...]
+
+    @property
+    def false_alarms(self) -> int:
+        return len(self.false_tracks)
 
 
 def _parse(text: str | None, where: str, col: str, kind: str) -> Any:
@@ -235,24 +240,31 @@ def _dist(a: Sequence[Point], b: Sequence[Point]) -> np.ndarray:
 
 def _allowed(a: Sequence[Point], b: Sequence[Point], d: np.ndarray, gate: float,
              sizes: Mapping[int, Box] | None) -> np.ndarray:
-    """Which truth ``a`` - point ``b`` pairs may match: distance ``d`` <= ``gate``, or ``b`` inside
-    the box of ``a`` (``sizes``: {target_id: (w, h)}) grown by BOX_MARGIN a side."""
-    ok = d <= gate
-    if sizes:
-        half = np.array([sizes.get(p[0], (_NAN, _NAN)) for p in a], float).reshape(-1, 2) / 2 + BOX_MARGIN
-        pa = np.array([p[1:] for p in a], float).reshape(-1, 2)
-        pb = np.array([p[1:] for p in b], float).reshape(-1, 2)
-        ok |= (np.abs(pb[None, :, :] - pa[:, None, :]) <= half[:, None, :]).all(axis=2)  # NaN: no box
-    return ok
+    """Which truth ``a`` - point ``b`` pairs may match (:func:`_within`; ``sizes``: {target_id:
+    (w, h)})."""
+    if not sizes:
+        return d <= gate
+    half = np.array([sizes.get(p[0], (_NAN, _NAN)) for p in a], float).reshape(-1, 2) / 2
+    return _within(np.array([p[1:] for p in a], float).reshape(-1, 2),
+                   np.array([p[1:] for p in b], float).reshape(-1, 2), d, gate, half)
+
+
+def _within(pa: np.ndarray, pb: np.ndarray, d: np.ndarray, gate: float, half: np.ndarray) -> np.ndarray:
+    """The matching rule, (len(pa), len(pb)): truth ``pa`` and point ``pb`` (N, 2) at distance
+    ``d`` may match when ``d`` <= ``gate`` or ``pb`` lies inside the truth's box of half sizes
+    ``half`` (N, 2; NaN: no box) grown by BOX_MARGIN a side."""
+    grown = half + BOX_MARGIN
+    return (d <= gate) | (np.abs(pb[None, :, :] - pa[:, None, :]) <= grown[:, None, :]).all(axis=2)
 
 
 def matchable(target: Point, xy: np.ndarray, gate: float, box: Box | None = None) -> np.ndarray:
-    """Which points ``xy`` (N, 2) the scoring rule lets match truth point ``target`` (id, x, y)
-    with box ``box`` (w, h; None: none): :func:`_allowed`, the one rule."""
-    pts = [(0, float(x), float(y)) for x, y in np.asarray(xy, dtype=np.float64).reshape(-1, 2)]
-    if not pts:
-        return np.zeros(0, dtype=bool)
-    return _allowed([target], pts, _dist([target], pts), gate, {target[0]: box} if box else None)[0]
+    """Which points ``xy`` (N, 2) the scoring rule (:func:`_within`) lets match truth point
+    ``target`` (id, x, y) with box ``box`` (w, h; None: none)."""
+    pb = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
+    pa = np.array([target[1:]], dtype=np.float64)
+    d = np.hypot(pb[:, 0] - pa[0, 0], pb[:, 1] - pa[0, 1])[None, :]
+    half = np.array([box if box else (_NAN, _NAN)], dtype=np.float64) / 2
+    return _within(pa, pb, d, gate, half)[0]
 
 
 def _assign(a: Sequence[Point], b: Sequence[Point], gate: float,
@@ -286,7 +298,9 @@ def frame_errors(track_pts: Sequence[Point], truth_pts: Sequence[Point], gate: f
     pairs = _assign(truth_pts, tracks, gate, boxes)
     matches = tuple((tracks[j][0], truth_pts[i][0], d) for i, j, d in pairs)
     cle = float(np.mean([d for *_, d in matches])) if matches else _NAN
-    return FrameErrors(cle, len(truth_pts) - len(pairs), len(tracks) - len(pairs), matches)
+    used = {j for _, j, _ in pairs}
+    false = tuple(t[0] for j, t in enumerate(tracks) if j not in used)
+    return FrameErrors(cle, len(truth_pts) - len(pairs), matches, false)
 
 
 def score_targets(tracks: Points, truth: Points, gate: float = 3.0) -> list[TargetScore]:

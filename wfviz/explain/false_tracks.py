@@ -26,6 +26,7 @@ from typing import Any
 
 import numpy as np
 
+from wfviz.evaluate import FrameErrors
 from wfviz.explain.types import FalseCause, FalseExplanation
 from wfviz.stages.front_end import FrontEndResult
 from wfviz.stages.horizon import horizon_confident
@@ -60,16 +61,16 @@ class FalseCauses:
         self._matched: dict[int, tuple[int, int]] = {}  # track -> (target, last frame)
         self._unmeasured: set[int] = set()  # live tracks that lived through a frame of unmeasured camera motion
 
-    def explain(self, result: FrameResult, shown: list[Point], hidden: list[Point],
-                matches: tuple[tuple[int, int, float], ...]) -> tuple[FalseExplanation, ...]:
-        """The cause of every confirmed track of ``result`` that ``matches`` (the scorer's
-        (track_id, target_id, distance)) leaves unmatched, those on ``hidden`` targets left out."""
+    def explain(self, result: FrameResult, shown: list[Point], errors: FrameErrors) -> tuple[FalseExplanation, ...]:
+        """The cause of every false alarm of ``errors`` (the scorer's matching of the frame:
+        :func:`wfviz.evaluate.frame_errors`) among the tracks of ``result``."""
         f = result.index
         front: FrontEndResult | None = getattr(result, "front", None)
         self._remember(result, front)
+        matches = errors.matches
         taken = {track for track, _, _ in matches}
-        false = [t for t in result.tracks if t.confirmed and t.track_id not in taken]
-        false = _off_hidden(false, hidden, self.gate)
+        ids = set(errors.false_tracks)
+        false = [t for t in result.tracks if t.track_id in ids]
         common = self._common_motion(result, false, taken)
         static = self._static(false)
         out = []
@@ -166,17 +167,6 @@ class FalseCauses:
             return FalseCause.UNKNOWN, (f"{common[t.track_id].replace(': the scene moved', '')}, with the camera's "
                                         f"motion measured (drifting clutter: clouds, smoke?)")
         return FalseCause.UNKNOWN, ""
-
-
-def _off_hidden(tracks: list[TrackState], hidden: list[Point], gate: float) -> list[TrackState]:
-    """``tracks`` minus those the scorer ignores as on a hidden target (one track per hidden
-    target within the gate, :func:`wfviz.evaluate.frame_errors`)."""
-    if not hidden or not tracks:
-        return tracks
-    from wfviz.evaluate import _assign
-
-    on = {j for _, j, _ in _assign(hidden, [(t.track_id, t.x, t.y) for t in tracks], gate)}
-    return [t for j, t in enumerate(tracks) if j not in on]
 
 
 def _structure(result: FrameResult, front: FrontEndResult | None, t: TrackState) -> str:

@@ -42,7 +42,7 @@ class ExplainSink(BaseSink):
             ft = FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), confirmed_points(result), self.gate, boxes)
         matches = ft.errors.matches
         truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches, boxes)
-        false = self.false_causes.explain(result, ft.shown, ft.hidden, matches)
+        false = self.false_causes.explain(result, ft.shown, ft.errors)
         self.rows += [(e.target_id, e.cause.value) for e in truth]
         self.false += [e.cause.value for e in false]
         if self.writer is not None:

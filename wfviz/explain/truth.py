@@ -92,6 +92,7 @@ class TruthCauses:
         self._owner: dict[int, tuple[int, int]] = {}     # target -> (track that matched it, last frame)
         self._deleted: dict[int, tuple[int, str]] = {}   # track -> (frame, the deletion's message)
         self._boxes: Mapping[int, Box] = {}
+        self._track_xy = np.zeros((0, 2))  # this frame's track positions (rows as result.tracks)
 
     def near(self, target: Point, xy: np.ndarray) -> np.ndarray:
         """Which points ``xy`` (N, 2) lie "within the gate" of ``target``: the scorer's rule
@@ -113,6 +114,7 @@ class TruthCauses:
         matched = {target: track for track, target, _ in matches}
         front: FrontEndResult | None = getattr(result, "front", None)
         dets = result.detections
+        self._track_xy = np.array([(t.x, t.y) for t in result.tracks], dtype=np.float64).reshape(-1, 2)
         out = [self._one(result, front, dets, tid, x, y, matched) for tid, x, y in shown]
         for tid, track in matched.items():
             self._owner[tid] = (track, f)
@@ -150,7 +152,7 @@ class TruthCauses:
         if lost is not None:
             return say(Cause.LOST, *lost)
         live = result.tracks
-        tracks = [t for t, ok in zip(live, self.near((tid, x, y), np.array([[t.x, t.y] for t in live])).tolist()) if ok]
+        tracks = [t for t, ok in zip(live, self.near((tid, x, y), self._track_xy).tolist()) if ok]
         tentative = sorted((t for t in tracks if not t.confirmed), key=lambda t: math.hypot(t.x - x, t.y - y))
         if tentative:
             t = tentative[0]
