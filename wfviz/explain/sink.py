@@ -4,6 +4,7 @@ written, and the run's :class:`~wfviz.explain.report.ExplainSummary` published a
 
 from __future__ import annotations
 
+from collections import Counter
 from pathlib import Path
 from typing import Any
 
@@ -29,8 +30,8 @@ class ExplainSink(BaseSink):
         self.gate, self.run = gate, run
         self.truth_causes = TruthCauses(tracker, config, gate)
         self.false_causes = FalseCauses(gate)
-        self.rows: list[tuple[int, str]] = []
-        self.false: list[str] = []
+        self.rows: Counter[tuple[int, str]] = Counter()  # (target, cause): counts, not rows (long clips)
+        self.false: Counter[str] = Counter()
         self.writer = ExplainWriter(path) if path is not None else None
 
     def publish(self, step: Step) -> None:
@@ -43,14 +44,14 @@ class ExplainSink(BaseSink):
         matches = ft.errors.matches
         truth = self.truth_causes.explain(result, ft.shown, ft.hidden, matches, boxes)
         false = self.false_causes.explain(result, ft.shown, ft.errors)
-        self.rows += [(e.target_id, e.cause.value) for e in truth]
-        self.false += [e.cause.value for e in false]
+        self.rows.update((e.target_id, e.cause.value) for e in truth)
+        self.false.update(e.cause.value for e in false)
         if self.writer is not None:
             self.writer.write(truth, false)
         step.facts.put(FrameExplanation(f, truth, false), self.run)
 
     def conclude(self, end: RunEnd) -> None:
-        end.facts.put(summarise(self.rows, self.false), self.run)
+        end.facts.put(summarise(self.rows.elements(), self.false.elements()), self.run)
 
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:

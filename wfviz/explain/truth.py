@@ -108,8 +108,9 @@ class TruthCauses:
         scorer's rule: within the gate of the centre or inside the box)."""
         self._boxes = boxes or {}
         f = result.index
-        for e in result.events:
-            if e.kind == EventKind.DELETED:
+        owners = {track for track, _ in self._owner.values()}
+        for e in result.events:  # only the deletions a lost target will name (not every tentative track's)
+            if e.kind == EventKind.DELETED and e.track_id in owners:
                 self._deleted[e.track_id] = (f, e.message)
         matched = {target: track for track, target, _ in matches}
         front: FrontEndResult | None = getattr(result, "front", None)
