@@ -150,6 +150,12 @@ class TrackingConfig:
     p_lost: float = field(default=0.001, metadata=value_range(1e-9, 0.5))
     position_noise: float = field(default=0.3, metadata=value_range(0.001, 10.0))
     require_motion: bool = True
+    # confirm = "sprt": the tests against static clutter (motion, not clutter) need less evidence
+    # where the scene's clutter map (wfviz.tracking.clutter_map) has seen no persistent
+    # unexplained detections; false: every track proves it moves, everywhere
+    clutter_map: bool = True
+    clutter_memory: float = field(default=200.0, metadata=value_range(1.0, None))  # frames
+    clutter_cell: int = field(default=16, metadata=value_range(2, None))  # px, in the scene
     min_motion: float = field(default=2.0, metadata=value_range(0.0, None))  # px, net (tracking.confirmation)
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.5, metadata=value_range(0.01, 0.999))

@@ -219,8 +219,8 @@ class DetectionDensity:
         if self._area is None or self._area[0] is not valid:
             pad = np.zeros((ny * t, nx * t))
             pad[:h, :w] = valid
-            self._area = (valid, _box3(pad.reshape(ny, t, nx, t).sum(axis=(1, 3))))
-        density = (_box3(counts) + self.prior) / np.maximum(self._area[1], 1.0)
+            self._area = (valid, box3(pad.reshape(ny, t, nx, t).sum(axis=(1, 3))))
+        density = (box3(counts) + self.prior) / np.maximum(self._area[1], 1.0)
         if self.grid is None or self.grid.shape != density.shape:
             self.grid = density
         else:
@@ -236,7 +236,7 @@ class DetectionDensity:
         return self.grid[r, c]
 
 
-def _box3(a: np.ndarray) -> np.ndarray:
+def box3(a: np.ndarray) -> np.ndarray:
     """Sum over each cell's 3 × 3 neighbourhood (zero outside the grid)."""
     p = np.pad(a, 1)
     return sum(p[i:i + a.shape[0], j:j + a.shape[1]] for i in range(3) for j in range(3))

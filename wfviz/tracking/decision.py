@@ -33,7 +33,11 @@ class Evidence:
     half sizes (N, 2) of this frame's predictions (``kalman.gate_max`` where there were none);
     ``S_inv``: inverse innovation covariances (N, 2, 2) of the predictions; ``nearest``: the
     detection nearest each prediction (:attr:`Association.nearest`, -1: none);
-    ``tested_per_frame``: tentative tracks tested per frame, running mean (None: not yet)."""
+    ``tested_per_frame``: tentative tracks tested per frame, running mean (None: not yet);
+    ``clutter_map``: the scene's clutter map at each track (:class:`~wfviz.tracking.clutter_map.ClutterMap`):
+    the counts of persistent unexplained detections and the exposures about it
+    (:meth:`~wfviz.tracking.clutter_map.ClutterMap.at`) and how many of this frame's lie in its
+    gate; None: no map."""
 
     measured: np.ndarray
     missed: np.ndarray
@@ -48,6 +52,7 @@ class Evidence:
     S_inv: np.ndarray
     nearest: np.ndarray
     tested_per_frame: float | None
+    clutter_map: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
 
 
 class Verdict(StrEnum):
@@ -71,11 +76,14 @@ class Check:
     holds: bool
     deletes: bool = False
     unit: str = ""
+    info: bool = False  #: a value the tests read (e.g. a prior), not a test: it always holds
 
     def __str__(self) -> str:
         unit = f" {self.unit}" if self.unit else ""
         if np.isnan(self.value):
             return f"{self.name}: not tested"
+        if self.info:
+            return f"{self.name} {self.value:.3g}{unit}"
         op = self.op if self.holds else _NOT[self.op]
         return f"{self.name} {self.value:.3g}{unit} {op} {self.level:.3g}"
 
@@ -93,13 +101,14 @@ class Statistic:
     holds: np.ndarray
     deletes: bool = False
     unit: str = ""
+    info: bool = False  #: see :attr:`Check.info`
 
     def check(self, row: int) -> Check:
         """This test of the track in ``row``."""
         levels = np.asarray(self.level)
         level = levels if levels.ndim == 0 else levels[row]
         return Check(self.name, float(self.value[row]), float(level), self.op, bool(self.holds[row]),
-                     self.deletes, self.unit)
+                     self.deletes, self.unit, self.info)
 
 
 @dataclass(frozen=True)

@@ -274,7 +274,8 @@ class TrackManager:
     def update(self, association: Association, detections: Measurements,
                positions: dict[int, tuple[float, float]] | None = None, track_density: np.ndarray | None = None,
                gate_k: np.ndarray | None = None, start: np.ndarray | bool | None = None,
-               frame_shape: tuple[int, ...] | None = None) -> list[TrackEvent]:
+               frame_shape: tuple[int, ...] | None = None,
+               track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> list[TrackEvent]:
         """Apply this frame's ``association`` of ``detections``; count misses, confirm, delete,
         start new tracks (:meth:`initiate`; ``start`` as there). Returns the frame's events
         (including the meeting events of :meth:`predict` and those of :meth:`reacquire`).
@@ -287,6 +288,8 @@ class TrackManager:
         below the frame's, a hit's false-alarm probability is at least
         ``tracking.gate_false_alarm`` and its significance is scored from there. ``frame_shape``:
         the image's (rows, columns); a coasting track whose position leaves it is deleted.
+        ``track_clutter``: the clutter map's counts and exposures about each track and this frame's count in its gate
+        (:class:`~wfviz.tracking.clutter_map.ClutterMap`; the sequential rule's static prior).
 
         Per measured track the rules read its detection's significance (a track is confirmed at
         ``confirm_hits`` hits when their mean also reaches ``confirm_significance``; 0 = hits
@@ -337,7 +340,8 @@ class TrackManager:
         if labels is not None:
             clutter = np.full(n, np.nan)
             clutter[list(labels)] = list(labels.values())
-        self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k)
+        self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k,
+                     track_clutter)
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
@@ -368,7 +372,8 @@ class TrackManager:
 
     def _decide(self, rows: np.ndarray, z: np.ndarray, nearest: np.ndarray, clutter: np.ndarray | None,
                 density: np.ndarray | None, significance: np.ndarray, novelty: np.ndarray,
-                gate_k: np.ndarray | None) -> None:
+                gate_k: np.ndarray | None,
+                track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
         """Report, count misses, let the rule decide (the :class:`Evidence` of the measured
         ``rows`` with measurements ``z``), end the tracks it deletes and those :meth:`_gone`."""
         t = self.tracks
@@ -392,7 +397,8 @@ class TrackManager:
         half = g.half if len(g.half) == n else np.full((n, 2), self.kcfg.gate_max)
         ids, was_confirmed = t.ids, t.confirmed.copy()
         out = self.rule.decide(t, Evidence(measured, missed, moved, reported, clutter, density, significance,
-                                           novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame))
+                                           novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame,
+                                           track_clutter))
         if out.thresholds is not None:
             self.thresholds = out.thresholds
         confirm, delete, why = out.confirm, out.delete, out.why

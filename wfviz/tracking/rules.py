@@ -21,6 +21,7 @@ import numpy as np
 from wfviz.config import ClutterConfig, TrackingConfig
 from wfviz.tracking import confirmation
 from wfviz.tracking.association import Measurements
+from wfviz.tracking.clutter_map import static_rate
 from wfviz.tracking.decision import Decisions, Evidence, Statistic
 from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
@@ -164,12 +165,32 @@ class SequentialStats(Columns):
     clutter_score: np.ndarray  #: (N,) test against static clutter: sum of ``clutter_hits``
     static_cusum: np.ndarray   #: (N,) since confirmation: Page's CUSUM towards static clutter
     clutter_hits: np.ndarray   #: (N, MOTION_HISTORY) clutter evidence of the last hits, oldest first
+    own_static: np.ndarray     #: (N,) persistent unexplained detections in its gates (clutter map)
 
     @classmethod
     def blank(cls, n: int) -> SequentialStats:
         """``n`` rows of zeros."""
         return cls(score=np.zeros(n), clutter_score=np.zeros(n), static_cusum=np.zeros(n),
-                   clutter_hits=np.zeros((n, MOTION_HISTORY)))
+                   clutter_hits=np.zeros((n, MOTION_HISTORY)), own_static=np.zeros(n))
+
+
+def static_prior(count: np.ndarray, exposure: np.ndarray, own: np.ndarray) -> np.ndarray:
+    """Probability that a persistent point is static clutter at its place, from the clutter map's
+    ``count`` and ``exposure`` about it (:meth:`~wfviz.tracking.clutter_map.ClutterMap.at`):
+    ``1 - exp(-r)`` with ``r`` the rate of persistent unexplained detections there per frame
+    (:func:`~wfviz.tracking.clutter_map.static_rate`) without the track's ``own`` (those in its
+    gates, forgotten alike): the chance that its neighbourhood produced one in a frame."""
+    return -np.expm1(-static_rate(np.maximum(count - own, 0.0), exposure))
+
+
+def static_levels(th: confirmation.Thresholds, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """Levels of the two tests against static clutter at a place whose static-clutter prior is
+    ``prior`` (:func:`static_prior`): the false-confirmation rate α is what the tests must keep
+    a static point to, and the prior already keeps it to ``prior``, so the tests need only
+    α / prior more: "not clutter" (Wald's test, nats) ``confirm + ln prior``, the motion T²
+    (χ², 2 d.o.f.) ``motion + 2 ln prior``, neither below 0 (0: not needed)."""
+    lp = np.log(np.clip(prior, 1e-300, 1.0))
+    return np.maximum(th.confirm + lp, 0.0), np.maximum(th.motion + 2.0 * lp, 0.0)
 
 
 class SequentialRule(Rule):
@@ -203,9 +224,9 @@ class SequentialRule(Rule):
             zb = np.asarray(births.significance, dtype=np.float64)
             new.score += confirmation.amplitude_score(zb, self.detection_threshold)
             if births.novelty is not None:
+                nov = np.asarray(births.novelty, dtype=np.float64)
                 new.clutter_hits[:, -1] = confirmation.change_evidence(
-                    np.asarray(births.novelty, dtype=np.float64), self.detection_threshold,
-                    tc.static_change_rate, tc.target_change_rate)
+                    nov, self.detection_threshold, tc.static_change_rate, tc.target_change_rate)
                 new.clutter_score[:] = new.clutter_hits[:, -1]
         self.stats.append(new)
 
@@ -219,7 +240,7 @@ class SequentialRule(Rule):
         need = 1
         if levels is not None and per_hit > 0:
             need = max(need, math.ceil(levels.confirm / per_hit - 1e-9))
-        if tc.require_motion and tc.min_motion > 0:
+        if tc.require_motion and tc.min_motion > 0 and not tc.clutter_map:
             need = max(need, MOTION_MIN_POSITIONS)
         return need
 
@@ -258,21 +279,34 @@ class SequentialRule(Rule):
             s.static_cusum[m] = np.maximum(s.static_cusum[m] - clutter[m], 0.0)
         conf = tracks.confirmed
         s.score[conf] = np.minimum(s.score[conf], th.confirm)
-        confirm = measured & ~conf & (s.score >= th.confirm) & (s.clutter_score >= th.confirm)
+        stats = [_measured(e)]
+        if tc.clutter_map and e.clutter_map is not None:
+            count, exposure, mine = e.clutter_map
+            s.own_static = s.own_static * (1.0 - 1.0 / tc.clutter_memory) + mine
+            prior = static_prior(count, exposure, s.own_static)
+            stats.append(Statistic("clutter map: static prior", prior, np.nan, "<=", np.ones(n, dtype=bool),
+                                   info=True))
+        else:
+            prior = np.ones(n)
+        clutter_level, motion_level = static_levels(th, prior)
+        not_clutter = (s.clutter_score >= clutter_level) | (clutter_level <= 0)  # level 0: not needed
+        confirm = measured & ~conf & (s.score >= th.confirm) & not_clutter
         score, clutter_score = s.score.copy(), s.clutter_score.copy()
-        stats = [_measured(e), Statistic("persistence", score, th.confirm, ">=", score >= th.confirm),
-                 Statistic("not clutter", clutter_score, th.confirm, ">=", clutter_score >= th.confirm)]
+        stats += [Statistic("persistence", score, th.confirm, ">=", score >= th.confirm),
+                  Statistic("not clutter", clutter_score, clutter_level, ">=", not_clutter)]
         if tc.require_motion:
             t2, steady = np.full(n, np.nan), np.full(n, np.nan)
+            # steady progress is asked for wherever motion is
+            steady_level = np.where(motion_level > 0, tc.min_motion / 2, 0.0)
             if confirm.any():
                 r = np.nonzero(confirm)[0]
                 mo = confirmation.motion(tracks.motion_t[r], tracks.motion_xy[r], tracks.motion_ok[r],
                                          tc.position_noise)
-                confirm[r[(mo.t2 < th.motion) | (mo.steady < tc.min_motion / 2)]] = False
+                confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
                 t2[r], steady[r] = mo.t2, mo.steady
-            stats += [Statistic("motion: T²", t2, th.motion, ">=", t2 >= th.motion),
-                      Statistic("motion: steady progress", steady, tc.min_motion / 2, ">=",
-                                steady >= tc.min_motion / 2, unit="px")]
+            stats += [Statistic("motion: T²", t2, motion_level, ">=", t2 >= motion_level),
+                      Statistic("motion: steady progress", steady, steady_level, ">=",
+                                (steady >= steady_level) | (steady_level <= 0), unit="px")]
         tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
         drop = ~conf & (s.score <= th.drop + tie)
         lost = conf & (s.score <= th.delete + tie)

@@ -5,6 +5,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from wfviz.io.frames import Frame
 from wfviz.stages.centroid import measure_many
@@ -17,7 +18,10 @@ from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
+from wfviz.tracking.clutter_map import ClutterMap
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
+
+PERSIST_RADIUS = 1.5  # px: a detection this close to one of the previous frame (in the scene) persists
 
 
 @dataclass(frozen=True)
@@ -60,6 +64,10 @@ class GEWCTracker:
         self.manager = TrackManager(c.kalman, c.tracking, c.detection.k_sigma,
                                     clutter_rule=c.clutter if self.clutter is not None else None)
         self.density = DetectionDensity(c.noise.tile)
+        t = c.tracking
+        self.clutter_map = (ClutterMap(t.clutter_cell, t.clutter_memory)
+                            if t.clutter_map and t.confirm == "sprt" else None)
+        self._last_scene: np.ndarray | None = None  # the previous frame's detections, in the scene
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -96,11 +104,16 @@ class GEWCTracker:
         lap("centroid")
         self.density.update(dets.xy[~assoc.claimed], valid)
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
+        track_clutter = None
+        if self.clutter_map is not None:
+            counted, mine = self._unexplained(dets, preds, assoc.pairs, fe.offset)
+            self.clutter_map.update(dets.xy[counted], fe.region, fe.offset)
+            track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy)),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
-            gate_k=gate_k, frame_shape=fe.image.shape)
+            gate_k=gate_k, frame_shape=fe.image.shape, track_clutter=track_clutter)
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
@@ -109,6 +122,36 @@ class GEWCTracker:
             verdicts=self.manager.verdicts, detection_tracks=self.manager.detection_tracks,
             innovations=self.manager.innovations(), thresholds=self.manager.thresholds,
             measurements=tuple(meas.values()), clutter=labels)
+
+    def _persistent(self, xy: np.ndarray, offset: np.ndarray) -> np.ndarray:
+        """Detections ``xy`` with one of the previous frame within ``PERSIST_RADIUS`` px of the
+        same scene point (camera ``offset`` removed): noise rarely strikes one place twice, a
+        fixed object of the scene does; then remembers this frame's."""
+        scene = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - offset
+        last, self._last_scene = self._last_scene, scene
+        if not len(scene) or last is None or not len(last):
+            return np.zeros(len(scene), dtype=bool)
+        d, _ = cKDTree(last).query(scene, distance_upper_bound=PERSIST_RADIUS)
+        return np.isfinite(d)
+
+    def _unexplained(self, dets: Detections, preds: list[Prediction], pairs: dict[int, int],
+                     offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+        """The detections the clutter map counts: persistent (:meth:`_persistent`) and explained by
+        no confirmed track (neither taken by one nor in its gate); and how many of them lie in
+        each track's gate (a tentative track's own hits and its target's other parts, which must
+        not teach the map that its place is clutter)."""
+        keep = self._persistent(dets.xy, offset)
+        confirmed = self.manager.tracks.confirmed
+        keep[[j for i, j in pairs.items() if confirmed[i]]] = False
+        mine = np.zeros(len(preds))
+        if preds and keep.any():
+            g = np.array([[p.x, p.y, p.half_w, p.half_h] for p in preds])
+            d = np.abs(dets.xy[keep, None, :] - g[None, :, :2])
+            inside = (d[..., 0] <= g[:, 2]) & (d[..., 1] <= g[:, 3])
+            rows = np.nonzero(keep)[0]
+            keep[rows[(inside & confirmed[None, :]).any(axis=1)]] = False
+            mine = (inside & keep[rows, None]).sum(axis=0).astype(np.float64)
+        return keep, mine
 
     def _predict(self, index: int, camera: CameraState | None) -> list[Prediction]:
         """The tracks moved by the camera's shift of this frame (``camera``; None: not
