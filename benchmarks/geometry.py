@@ -265,8 +265,15 @@ of full evidence). The paper's multi-direction maximum gradient
 The rules and values were chosen while looking at S1-S7, the own scenarios and the first frames
 of all 24 real sequences (there is no held-out set; the tests use synthetic frames).
 
+**Cloud doubt.** A line on a cloud edge (or on the sun) has sky again below it: the share of
+each column below a row that is sky-like (grey level within the 5-95 % range and texture within the
+95th percentile of the pixels above the path) and 4-connected to the sky above the path is the
+doubt's measure, ramp 0.05 → 0.15 (true skylines of S3, S4, S7 and the real sequences: ≤ 0.06;
+cloud segments of IR_BIRD_017 / IR_HELICOPTER_036: 0.2-0.8). The evidence is scaled by
+1 - doubt and the path found again, so it takes the ground line under a cloud band.
+
 **Confidence** = support × separation. Support is the share of imaging columns whose path
-evidence reaches 0.5; separation says whether the line splits the frame into two different
+evidence (after the doubt) reaches 0.5; separation says whether the line splits the frame into two different
 regions: the larger of log(median texture below / above)/log 2 and (U - 0.15)/0.45, U being the
 share of the ground pixels outside the sky's 5-95 % grey range or above its 95th-percentile
 texture (clipped to [0, 1]; a terrain-only view has smooth patches with a local "horizon", but no

@@ -12,8 +12,8 @@ import numpy as np
 import pytest
 
 from wfviz.config import CircleConfig, HorizonConfig
-from wfviz.stages.horizon import (CONFIDENT, Horizon, HorizonTracker, blend, find_horizon, horizon_confident,
-                           search_zones)
+from wfviz.stages.horizon import (CONFIDENT, SKY_BELOW_HIGH, SKY_BELOW_LOW, Horizon, HorizonTracker, blend,
+                                  boundary_evidence, find_horizon, horizon_confident, search_zones, sky_below)
 from wfviz.stages.imaging_circle import (ImagingCircle, ImagingMask, estimate_imaging_circle, non_imaging_mask,
                                   resolve_circle)
 
@@ -96,6 +96,56 @@ def test_cloud_bands_are_not_a_horizon():
         img += amp * np.exp(-0.5 * ((yy - edge) / 9.0) ** 2)
     hz = find_horizon(img, np.ones(img.shape, bool), CFG)
     assert not horizon_confident(hz)
+
+
+def cloud_band_scene(rng: np.random.Generator) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
+    """A bright, textured cloud band (columns 80-239) with a sharp upper edge near row 60 that
+    fades out by row 110, clear sky below and beside it, over textured ground near row 170;
+    under the band a smooth warm gate (40 rows) gives the ground line there little evidence,
+    so the cloud's upper edge is the stronger line in those columns (IR_HELICOPTER_036's case).
+    Returns (frame, true ground boundary row per column, cloud edge row per column)."""
+    yy, xx = np.mgrid[:H, :W].astype(np.float32)
+    img = sky((H, W), rng)
+    upper = 60.0 + 4.0 * np.sin(xx[0] / 23.0)
+    band = (xx >= 80) & (xx < 240)
+    cloud = np.clip((110.0 - yy) / 30.0, 0, 1) * (yy >= np.ceil(upper)[None, :]) * band
+    img += cloud * (1500.0 + texture(rng, (H, W), 150.0))
+    ground_row = 170.0 + 0.0004 * (xx[0] - W / 2) ** 2
+    ground = yy >= np.ceil(ground_row)[None, :]
+    img = np.where(ground, 7000.0 + texture(rng, (H, W), 300.0), img)
+    img = np.where(ground & band & (yy < ground_row[None, :] + 40), 7000.0, img)   # the gate
+    img += rng.normal(0, 20, (H, W))
+    return img.astype(np.float32), np.ceil(ground_row) - 0.5, np.ceil(upper) - 0.5
+
+
+def test_a_line_on_a_cloud_band_has_sky_below_it():
+    """The measure behind the cloud doubt: under a line on the cloud's edge the column is sky
+    again further down (sky below ≥ SKY_BELOW_HIGH, full doubt), under the ground line it is
+    not (≤ SKY_BELOW_LOW)."""
+    img, ground_row, cloud_row = cloud_band_scene(np.random.default_rng(31))
+    valid = np.ones(img.shape, bool)
+    ev = boundary_evidence(img, valid)
+    x = np.arange(W)
+    on_ground = (ground_row + 0.5).astype(np.int64)          # working row y: boundary at y - 0.5
+    on_cloud = np.where((x >= 80) & (x < 240), (cloud_row + 0.5).astype(np.int64), on_ground)
+    for path in (on_ground, on_cloud):
+        share = sky_below(ev, valid, path)[path, x]
+        assert np.all(share[:70] <= SKY_BELOW_LOW) and np.all(share[250:] <= SKY_BELOW_LOW)
+    assert np.all(sky_below(ev, valid, on_ground)[on_ground, x][80:240] <= SKY_BELOW_LOW)
+    assert np.all(sky_below(ev, valid, on_cloud)[on_cloud, x][85:235] >= SKY_BELOW_HIGH)
+
+
+def test_cloud_band_edge_is_doubted_and_the_ground_line_found():
+    """Without the doubt the path followed the cloud's edge over half the width (confidence
+    1.0, the ground under it not searched); with it the line stays on or below the ground in
+    the band's columns and the ground horizon keeps a high confidence."""
+    img, ground_row, _ = cloud_band_scene(np.random.default_rng(31))
+    hz = find_horizon(img, np.ones(img.shape, bool), CFG)
+    assert hz is not None and horizon_confident(hz) and hz.confidence > 0.8
+    assert hz.ground > 0.95
+    assert np.all(hz.rows[80:240] >= ground_row[80:240] - 2.0)
+    err = np.abs(hz.rows - ground_row)
+    assert np.median(err[:70]) < 1.5 and np.median(err[250:]) < 1.5
 
 
 def test_terrain_only_view_is_not_confident():

@@ -178,7 +178,9 @@ def test_gewc_recording_logs_the_front_end_entities(tmp_path: Path) -> None:
     # horizon.every frames (0, 10, ...: frame 0 only in 10 frames)
     assert sorted(rows["/geometry/circle_confidence"]) == [0]
     assert sorted(rows["/geometry/horizon_confidence"]) == [0]
-    for path in ("/geometry/circle_confidence", "/geometry/horizon_confidence"):
+    assert sorted(rows["/geometry/horizon_ground"]) == [0]
+    for path in ("/geometry/circle_confidence", "/geometry/horizon_confidence", "/geometry/horizon_support",
+                 "/geometry/horizon_separation", "/geometry/horizon_ground"):
         assert all(0.0 <= v <= 1.0 for v in _scalars(rrd, path).values()), path
 
 

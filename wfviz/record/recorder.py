@@ -196,6 +196,8 @@ def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
             [line] if line is not None and len(line) else [], labels=label if line is not None and len(line) else None,
             colors=HORIZON_COLOR if used else HORIZON_IGNORED_COLOR, radii=0.8, show_labels=False))
         rec.log("geometry/horizon_confidence", rr.Scalars(float(h.confidence) if h is not None else 0.0))
+        for factor in ("support", "separation", "ground"):    # the confidence's factors
+            rec.log(f"geometry/horizon_{factor}", rr.Scalars(float(getattr(h, factor)) if h is not None else 0.0))
 
 
 #: the entities that are images of the frame (raw, stage and map images, masks)

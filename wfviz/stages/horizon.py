@@ -78,6 +78,13 @@ SUPPORT_EVIDENCE = 0.5
 SEPARATION_RATIO = 2.0
 SEPARATION_NULL = 0.15
 SEPARATION_FULL = 0.6
+#: Sky below the line: a line with at most SKY_BELOW_LOW of its column below it (to the imaging
+#: area's bottom) sky-like and connected to the sky above the line is a ground line (no doubt; a
+#: few such pixels are sky seen through a fence or between trees); from SKY_BELOW_HIGH it is a
+#: cloud edge (full doubt: the region below it is sky again further down)
+#: (``horizon.sky_below_low`` / ``horizon.sky_below_high``).
+SKY_BELOW_LOW = 0.05
+SKY_BELOW_HIGH = 0.15
 #: Confidence at or above which a horizon is used to split sky from ground
 #: (``horizon.confidence_min``).
 CONFIDENT = 0.5
@@ -93,15 +100,18 @@ class Horizon:
     """Horizon row for every column (NaN where the column has no horizon); sky is above.
 
     ``confidence`` = ``support`` · ``separation`` in [0, 1] (see :func:`find_horizon`):
-    ``support`` is the share of imaging columns where the line has local evidence,
-    ``separation`` how distinct the regions above and below are. A horizon built by hand
-    (``Horizon(rows)``) is trusted: all three are 1.
+    ``support`` is the share of imaging columns where the line has local evidence and ground
+    (not sky) below it, ``separation`` how distinct the regions above and below are;
+    ``ground`` is the share of the line's columns with ground below it (not doubted as a cloud
+    edge, :func:`sky_below`), a diagnostic already contained in ``support``. A horizon built by
+    hand (``Horizon(rows)``) is trusted: all four are 1.
     """
 
     rows: np.ndarray
     confidence: float = 1.0
     support: float = 1.0
     separation: float = 1.0
+    ground: float = 1.0
 
     def polyline(self, step: int = 4) -> np.ndarray:
         """(N, 2) array of (x, y) points along the horizon, every ``step`` columns."""
@@ -476,6 +486,46 @@ def _separation(ev: BoundaryEvidence, path: np.ndarray) -> float:
     return float(max(by_texture, by_range))
 
 
+def sky_below(ev: BoundaryEvidence, valid: np.ndarray, path: np.ndarray) -> np.ndarray:
+    """Per working pixel (y, x): the share of the imaging pixels of rows [y, bottom) of column
+    x that are sky, i.e. sky-like and connected to the sky above ``path``.
+
+    Sky-like: grey level within the 5th-95th percentiles of the pixels above the path (rows
+    above its sky window) and texture at most their 95th percentile (the regions of
+    :func:`_separation`). Sky: a 4-connected sky-like region that reaches above the path. The
+    region below a cloud edge is sky again further down and joins the sky beside the cloud
+    (where the path is on the ground), so a line on a cloud edge (or on the sun) has a large
+    share of sky below it; ground is warmer or rougher than the sky, and the sky-like patches
+    in it (a field, a road) do not connect to the sky. All zeros when the path has too little
+    sky above it.
+    """
+    k = WINDOW_ROWS
+    h = ev.level.shape[0]
+    yy = np.arange(h)[:, None]
+    p = path[None, :]
+    above = valid & (p >= 0) & (yy < p - k - _SKY_END)
+    if above.sum() < 16:
+        return np.zeros(ev.level.shape, np.float32)
+    sub = (slice(None, None, 2), slice(None, None, 2))      # statistics on every other pixel
+    la, ta = ev.level[sub][above[sub]], ev.texture[sub][above[sub]]
+    lo, hi = np.percentile(la, [5, 95])
+    rough = max(float(np.percentile(ta, 95)), ev.floor)
+    like = valid & (ev.level >= lo) & (ev.level <= hi) & (ev.texture <= rough)
+    n, labels = cv2.connectedComponents(like.astype(np.uint8), connectivity=4)
+    seeded = np.zeros(n, bool)
+    seeded[labels[above & like]] = True
+    seeded[0] = False
+    n_sky = _count_below(seeded[labels])
+    return n_sky / np.maximum(_count_below(valid), np.float32(1.0))
+
+
+def _count_below(mask: np.ndarray) -> np.ndarray:
+    """Per pixel (y, x): the number of true pixels of ``mask`` in rows [y, bottom) of column x
+    (float32; a column difference of the flipped mask's integral image)."""
+    integral = cv2.integral(np.ascontiguousarray(mask[::-1]).astype(np.uint8))
+    return np.diff(integral[1:], axis=1)[::-1].astype(np.float32)
+
+
 def find_horizon(image: np.ndarray, valid: np.ndarray, cfg: HorizonConfig) -> Horizon | None:
     """Detect the sky-ground line in ``image`` inside ``valid`` (the imaging area).
 
@@ -483,11 +533,18 @@ def find_horizon(image: np.ndarray, valid: np.ndarray, cfg: HorizonConfig) -> Ho
     2. Evidence per working pixel (:func:`boundary_evidence`, constraint (a) of eq. 3).
     3. One path y(x) across the imaging columns maximising the evidence less the transition
        costs (:func:`best_path`; constraint (b): clutter does not form a continuous line).
-    4. Rows at full resolution: the Gmax (eq. 2) centroid near the path (:func:`_refine`).
+    4. Cloud doubt: the sky below each pixel (:func:`sky_below`, from the sky above that
+       path), doubt = ramp(sky below; SKY_BELOW_LOW, SKY_BELOW_HIGH); the evidence is scaled
+       by 1 - doubt (a cloud edge, the sun: sky again further down) and, when the path had
+       any doubt, the path is found again, so it takes the ground line under a cloud band.
+    5. Rows at full resolution: the Gmax (eq. 2) centroid near the path (:func:`_refine`).
 
-    Confidence = support · separation. support = share of the path's columns (working
-    columns with at least one allowed row) whose evidence reaches SUPPORT_EVIDENCE;
-    separation (:func:`_separation`) = how distinct the regions above and below the path are
+    Confidence = support · separation, three factors in all:
+    - support = share of the path's columns (working columns with at least one allowed row)
+      whose evidence · (1 - doubt) reaches SUPPORT_EVIDENCE: the line has local evidence
+      there (constraint (a)) and ground below it (``ground`` = share of the path's columns
+      with doubt below 0.5, recorded on its own; a line on a cloud edge loses those columns);
+    - separation (:func:`_separation`) = how distinct the regions above and below the path are
     (terrain-only views have locally sky-like smooth patches, but no line splits them into
     two different regions). Rows are given for every column of the imaging area, confident
     or not (columns too near the area's side for the windows take the nearest path row).
@@ -503,8 +560,13 @@ def find_horizon(image: np.ndarray, valid: np.ndarray, cfg: HorizonConfig) -> Ho
     cols = np.nonzero(path >= 0)[0]
     if cols.size == 0:
         return None
-    e_path = ev.evidence[path[cols], cols]
+    doubt = _ramp(sky_below(ev, ok, path), SKY_BELOW_LOW, SKY_BELOW_HIGH)
+    evidence = ev.evidence * (np.float32(1.0) - doubt)
+    if np.any(doubt[path[cols], cols] > 0):
+        path = best_path(evidence)
+    e_path = evidence[path[cols], cols]
     support = float(np.mean(e_path >= SUPPORT_EVIDENCE))
+    ground = float(np.mean(doubt[path[cols], cols] < 0.5))
     separation = _separation(ev, path) if support > 0 else 0.0
     # full resolution: working column c covers columns [c·f, c·f + f); the boundary between
     # working rows y - 1 and y lies at full-resolution row f·y - 0.5
@@ -517,7 +579,8 @@ def find_horizon(image: np.ndarray, valid: np.ndarray, cfg: HorizonConfig) -> Ho
     pw = filled[np.minimum(np.arange(w) // factor, path.size - 1)]
     coarse = np.where(valid.any(axis=0), factor * pw - 0.5, np.nan)
     rows = _refine(image, valid, coarse, factor, cfg)
-    return Horizon(rows, confidence=support * separation, support=support, separation=separation)
+    return Horizon(rows, confidence=support * separation, support=support, separation=separation,
+                   ground=ground)
 
 
 def search_region(valid: np.ndarray, horizon: Horizon | None, margin: float) -> np.ndarray:
@@ -586,14 +649,14 @@ def blend(old: Horizon | None, new: Horizon | None, smoothing: float,
         return new
     if new.confidence < threshold <= old.confidence:
         conf = smoothing * old.confidence + (1.0 - smoothing) * new.confidence
-        return Horizon(old.rows, conf, new.support, new.separation)
+        return Horizon(old.rows, conf, new.support, new.separation, new.ground)
     both = np.isfinite(old.rows) & np.isfinite(new.rows)
     close = both & (np.abs(np.where(both, old.rows - new.rows, 0.0)) <= agree_px)
     agree = float(close.sum() / both.sum()) if both.any() else 0.0
     conf = new.confidence + agree * smoothing * (old.confidence - new.confidence)
     rows = new.rows.copy()
     rows[close] = smoothing * old.rows[close] + (1.0 - smoothing) * new.rows[close]
-    return Horizon(rows, conf, new.support, new.separation)
+    return Horizon(rows, conf, new.support, new.separation, new.ground)
 
 
 class HorizonTracker:
