@@ -33,7 +33,9 @@ class Evidence:
     half sizes (N, 2) of this frame's predictions (``kalman.gate_max`` where there were none);
     ``S_inv``: inverse innovation covariances (N, 2, 2) of the predictions; ``nearest``: the
     detection nearest each prediction (:attr:`Association.nearest`, -1: none);
-    ``tested_per_frame``: tentative tracks tested per frame, running mean (None: not yet)."""
+    ``tested_per_frame``: tentative tracks tested per frame, running mean (None: not yet);
+    ``linearity``: each hit's linearity (:func:`wfviz.stages.detection.linearity`; NaN: no hit,
+    None: not measured), line-like above ``max_linearity``."""
 
     measured: np.ndarray
     missed: np.ndarray
@@ -48,6 +50,14 @@ class Evidence:
     S_inv: np.ndarray
     nearest: np.ndarray
     tested_per_frame: float | None
+    linearity: np.ndarray | None = None
+    max_linearity: float = 1.0
+
+    def line_hits(self) -> np.ndarray:
+        """The tracks whose hit this frame is line-like (``linearity > max_linearity``)."""
+        if self.linearity is None:
+            return np.zeros(len(self.measured), dtype=bool)
+        return self.measured & (np.nan_to_num(self.linearity, nan=-np.inf) > self.max_linearity)
 
 
 class Verdict(StrEnum):

@@ -259,15 +259,19 @@ class TrackManager:
 
     # -- initiate -------------------------------------------------------------------------
     @staticmethod
-    def initiate(association: Association, start: np.ndarray | bool | None = None) -> np.ndarray:
+    def initiate(association: Association, start: np.ndarray | bool | None = None,
+                 refused: np.ndarray | None = None) -> np.ndarray:
         """The detections that start tentative tracks this frame (indices). By default (None)
         the unused ones outside every confirmed gate. ``start`` False: none (fusion between its
         global detections); a mask (or True): the unused detections it allows, for a caller with
-        its own start rule."""
+        its own start rule. ``refused`` (a mask): detections that start none whatever ``start``
+        says (line-like ones, :meth:`Measurements.line_like`)."""
         if start is False:
             return np.zeros(0, dtype=np.int64)
         born = ~association.used()
         born &= ~association.claimed if start is None else np.asarray(start, dtype=bool)
+        if refused is not None:
+            born &= ~np.asarray(refused, dtype=bool)
         return np.nonzero(born)[0]
 
     # -- update ---------------------------------------------------------------------------
@@ -296,7 +300,9 @@ class TrackManager:
         1 static, 0 not, NaN undecided: a track needs ``min_known`` decided labels with a mean
         ≤ ``max_static`` to be confirmed, unless ``wait`` is off, and a confirmed track above
         ``delete_static`` is deleted); a meeting track's label is that of the detection nearest
-        its extrapolation."""
+        its extrapolation. A line-like detection (:meth:`Measurements.line_like`: part of a road,
+        a wire, an edge) starts no track, and a tentative track whose hit is line-like is not
+        confirmed in that frame (the rule's test "hit not line-like")."""
         d = detections
         pairs = association.pairs
         owner = np.full(len(d), -1, dtype=np.int64)
@@ -315,7 +321,7 @@ class TrackManager:
             labels = {int(i): float(d.clutter[j]) for i, j in enumerate(association.nearest.tolist())
                       if j >= 0 and self.tracks.meeting[i]}
             labels.update({i: float(d.clutter[pairs[i]]) for i in positions})
-        born = self.initiate(association, start)
+        born = self.initiate(association, start, d.line_like())
         births = Measurements(
             np.asarray(d.xy[born], dtype=np.float64).reshape(-1, 2),
             significance=None if d.significance is None else d.significance[born],
@@ -328,6 +334,10 @@ class TrackManager:
         if d.significance is not None:
             significance[rows] = d.significance[det]
         hit_novelty[rows] = novelty[det]
+        hit_linearity = None
+        if d.linearity is not None:
+            hit_linearity = np.full(n, np.nan)
+            hit_linearity[rows] = np.asarray(d.linearity, dtype=np.float64)[det]
         self._measure(rows, z, None if d.significance is None else d.significance[det],
                       None if d.blobness is None else d.blobness[det])
         if labels:  # measured tracks, and meeting tracks with a detection near them
@@ -337,7 +347,8 @@ class TrackManager:
         if labels is not None:
             clutter = np.full(n, np.nan)
             clutter[list(labels)] = list(labels.values())
-        self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k)
+        self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k,
+                     hit_linearity, d.max_linearity)
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
@@ -368,7 +379,8 @@ class TrackManager:
 
     def _decide(self, rows: np.ndarray, z: np.ndarray, nearest: np.ndarray, clutter: np.ndarray | None,
                 density: np.ndarray | None, significance: np.ndarray, novelty: np.ndarray,
-                gate_k: np.ndarray | None) -> None:
+                gate_k: np.ndarray | None, linearity: np.ndarray | None = None,
+                max_linearity: float = 1.0) -> None:
         """Report, count misses, let the rule decide (the :class:`Evidence` of the measured
         ``rows`` with measurements ``z``), end the tracks it deletes and those :meth:`_gone`."""
         t = self.tracks
@@ -392,7 +404,8 @@ class TrackManager:
         half = g.half if len(g.half) == n else np.full((n, 2), self.kcfg.gate_max)
         ids, was_confirmed = t.ids, t.confirmed.copy()
         out = self.rule.decide(t, Evidence(measured, missed, moved, reported, clutter, density, significance,
-                                           novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame))
+                                           novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame,
+                                           linearity, max_linearity))
         if out.thresholds is not None:
             self.thresholds = out.thresholds
         confirm, delete, why = out.confirm, out.delete, out.why
