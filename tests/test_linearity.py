@@ -4,6 +4,8 @@ hit counts as static clutter and holds its confirmation back)."""
 
 from __future__ import annotations
 
+from dataclasses import replace
+
 import numpy as np
 import pytest
 
@@ -13,7 +15,8 @@ from wfviz.stages.background import suppress_background
 from wfviz.stages.detection import detect, linearity
 from wfviz.stages.noise import NoiseModel
 from wfviz.synth.psf import add_gaussian_spot
-from wfviz.trackers.gewc import GEWCTracker
+from wfviz.trackers.gewc import GEWCConfig, GEWCTracker
+from wfviz.tracking.tracks import EventKind
 
 LEVEL = DetectionConfig().max_linearity
 H, W = 96, 128
@@ -98,23 +101,91 @@ def road_clip(n: int = 70, seed: int = 0) -> tuple[list[np.ndarray], np.ndarray,
     return frames, truth, d < 4.5
 
 
-@pytest.mark.parametrize("seed", [0, 1])
-def test_a_bright_road_seeds_no_track_and_the_target_is_confirmed(seed: int) -> None:
-    frames, truth, on_road = road_clip(seed=seed)
-    tracker = GEWCTracker()
-    births_on_road, confirmed_on_road, hits = 0, set(), []
+def _run_road(frames: list[np.ndarray], truth: np.ndarray, on_road: np.ndarray,
+              max_linearity: float) -> tuple[int, set[int], float]:
+    """The road clip through the GEWC tracker: tracks born on the road, confirmed tracks seen
+    on it, and the share of frames after the 10th with a confirmed track on the target."""
+    tracker = GEWCTracker(replace(GEWCConfig(), detection=replace(DetectionConfig(), max_linearity=max_linearity)))
+    births, confirmed, hits = 0, set(), []
+    h, w = on_road.shape
     for k, img in enumerate(frames):
         r = tracker.step(Frame(k, k / 25.0, img))
         for e in r.events:
-            if e.kind.name == "BORN":
+            if e.kind == EventKind.BORN:
                 j = np.nonzero(r.detection_tracks == e.track_id)[0]
                 x, y = r.detections.xy[j[0]]
-                births_on_road += bool(on_road[int(round(y)), int(round(x))])
+                births += bool(on_road[int(round(y)), int(round(x))])
         for t in r.tracks:
-            if t.confirmed and on_road[int(np.clip(round(t.y), 0, 119)), int(np.clip(round(t.x), 0, 159))]:
-                confirmed_on_road.add(t.track_id)
+            if t.confirmed and on_road[int(np.clip(round(t.y), 0, h - 1)), int(np.clip(round(t.x), 0, w - 1))]:
+                confirmed.add(t.track_id)
         hits.append(any(t.confirmed and np.hypot(t.x - truth[k, 0], t.y - truth[k, 1]) <= 3 for t in r.tracks))
-        assert r.detections.linearity is not None
-    assert not confirmed_on_road
-    assert births_on_road <= 3, births_on_road  # of the ~4 road detections a frame
-    assert np.mean(hits[10:]) >= 0.95
+    return births, confirmed, float(np.mean(hits[10:]))
+
+
+@pytest.mark.parametrize("seed", [0, 1])
+def test_a_bright_road_seeds_no_track_and_the_target_is_confirmed(seed: int) -> None:
+    """Without the shape test the road starts ~80 tentative tracks in 70 frames (and a few are
+    confirmed on other seeds); with it a handful at most, none confirmed, and the target is
+    tracked as before."""
+    frames, truth, on_road = road_clip(seed=seed)
+    births_off, _, hits_off = _run_road(frames, truth, on_road, 1.0)
+    births, confirmed, hits = _run_road(frames, truth, on_road, LEVEL)
+    assert births_off >= 50
+    assert births <= 0.1 * births_off, (births, births_off)
+    assert not confirmed
+    assert hits >= 0.95 and hits >= hits_off - 0.02
+
+
+def test_line_like_detections_start_no_track_and_their_hits_hold_confirmation_back() -> None:
+    """The track manager: a line-like detection starts no track; a tentative track whose hit
+    is line-like is not confirmed that frame, and the test says why."""
+    from wfviz.config import KalmanConfig, TrackingConfig
+    from wfviz.tracking import Measurements, TrackManager
+
+    mgr = TrackManager(KalmanConfig(), TrackingConfig())
+    xy = np.array([[20.0, 20.0], [60.0, 40.0]])
+    preds = mgr.predict(0)
+    mgr.update(mgr.associate(preds, xy), Measurements(xy, significance=np.array([8.0, 8.0]),
+                                                     linearity=np.array([0.1, 0.9]), max_linearity=LEVEL))
+    assert len(mgr) == 1  # only the point started a track
+    held = []
+    for k in range(1, 12):
+        p = np.array([[20.0 + 1.5 * k, 20.0]])
+        preds = mgr.predict(k)
+        line = k >= 3  # from frame 3 on its hits lie on a line
+        mgr.update(mgr.associate(preds, p), Measurements(p, significance=np.array([8.0]), novelty=np.array([8.0]),
+                                                        linearity=np.array([0.9 if line else 0.1]),
+                                                        max_linearity=LEVEL))
+        d = mgr.decision(mgr.track_ids[0])
+        if line and d is not None:
+            held += [c for c in d.checks if c.name == "hit not line-like: linearity"]
+    assert not mgr.confirmed_ids  # never confirmed on line-like hits: they count as static clutter
+    assert held and all(not c.holds and c.value == 0.9 and c.level == LEVEL for c in held)
+
+
+def test_line_like_detections_are_recorded(tmp_path) -> None:
+    """``wfviz record`` of the road clip: ``camera/line_like`` holds the line-like detections
+    (labelled with their linearity against the level), ``detection/line_like`` counts them and
+    the detections' hover values carry ``linearity``."""
+    import subprocess
+    import sys
+
+    from rerun.chunk import RrdReader
+
+    frames, _, _ = road_clip(n=12)
+    clip = tmp_path / "road.npy"
+    np.save(clip, np.stack(frames))
+    rrd = tmp_path / "r.rrd"
+    proc = subprocess.run([sys.executable, "-m", "wfviz", "record", str(clip), "-o", str(rrd), "--no-images"],
+                          capture_output=True, text=True, timeout=300)
+    assert proc.returncode == 0, proc.stderr
+    chunks = list(RrdReader(rrd).stream())
+    paths = {c.entity_path for c in chunks}
+    assert {"/camera/line_like", "/detection/line_like"} <= paths
+    labels = [v for c in chunks if c.entity_path == "/camera/line_like" and not c.is_static
+              for n in c.to_record_batch().schema.names if n.endswith(":labels")
+              for row in c.to_record_batch().column(n).to_pylist() if row for v in row]
+    assert labels and all("line-like" in v and f"> {LEVEL:.2f}" in v for v in labels)
+    names = {n.split(":")[-1] for c in chunks if c.entity_path == "/camera/detections"
+             for n in c.to_record_batch().schema.names}
+    assert "linearity" in names
