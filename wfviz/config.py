@@ -92,6 +92,10 @@ class DetectionConfig:
     min_area: int = field(default=1, metadata=value_range(1, None))
     max_area: int = field(default=400, metadata=value_range(1, None))
     max_detections: int = field(default=200, metadata=value_range(1, None))
+    # a detection whose linearity (wfviz.stages.detection.linearity: the share of its contrast
+    # that carries on along a line or an edge) exceeds this is line-like: it starts no track and
+    # its hits count as static clutter (not in the paper); 1: off
+    max_linearity: float = field(default=0.45, metadata=value_range(0.0, 1.0))
     # confirmed tracks' gates are searched beyond the search region too, below the horizon
     # (false: inside the search region only, the rule before; an ablation, docs/accuracy.md)
     gates_cross_horizon: bool = True

@@ -12,12 +12,14 @@ from wfviz.trackers.gewc import GEWCResult
 
 
 CLUTTER_COLOR = (255, 96, 0, 160)
+LINE_COLOR = (0, 200, 255, 200)
 
 
 class GEWCRecorder(Recorder):
     """Logs mask, horizon, residual, GEWC measurements and weights, Kalman scalars."""
 
     _clutter_started = False
+    _lines_started = False
 
     def series_views(self) -> list[rrb.View]:
         return super().series_views() + self.motion_views()
@@ -51,6 +53,7 @@ class GEWCRecorder(Recorder):
                 result.detections.xy[static].astype(np.float32), radii=2.5, class_ids=1,
                 colors=CLUTTER_COLOR, draw_order=DRAW_CLUTTER, show_labels=False))
             self.scalar("detection/static", int(static.sum()))
+        self._log_line_like(result)
         m = result.measurements
         ids = [x.track_id for x in m]
         rec.log("camera/centroids", rr.Points2D(
@@ -62,3 +65,22 @@ class GEWCRecorder(Recorder):
             if x.track_id in confirmed:
                 self.bar(f"gewc/{x.track_id}", x.weights, track_color(x.track_id))
         self.log_kalman(result, result.innovations)
+
+    def _log_line_like(self, result: GEWCResult) -> None:
+        """The line-like detections (part of a road, a wire, an edge: they start no track),
+        labelled with their linearity against its level on hover, and their number."""
+        d = result.detections
+        if d.linearity is None:
+            return
+        rec = self.rec
+        if not self._lines_started:
+            self._lines_started = True
+            rec.log("camera/line_like", class_context([(1, "line-like", LINE_COLOR)]), static=True)
+            self.add_legend([("line-like", LINE_COLOR)])
+        line = d.line_like()
+        labels = [f"linearity {v:.2f} > {d.max_linearity:.2f}: line-like, starts no track"
+                  for v in d.linearity[line].tolist()]
+        rec.log("camera/line_like", rr.Points2D(
+            d.xy[line].astype(np.float32), radii=3.0, class_ids=1, colors=LINE_COLOR, labels=labels,
+            draw_order=DRAW_CLUTTER, show_labels=False))
+        self.scalar("detection/line_like", int(line.sum()))

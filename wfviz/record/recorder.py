@@ -652,7 +652,8 @@ class Recorder:
                              draw_order=DRAW_DETECTIONS, show_labels=False)
         if len(d):  # hover values; an empty AnyValues batch only draws a warning
             extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
-                ("significance", d.significance), ("change", d.change), ("blobness", d.blobness))
+                ("significance", d.significance), ("change", d.change), ("blobness", d.blobness),
+                ("linearity", d.linearity))
                 if v is not None}
             rec.log("camera/detections", points, rr.AnyValues(
                 area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra))

@@ -355,7 +355,7 @@ class FrontEnd:
         else:
             dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap)
         dets = score_detections(dets, p.image, full, c.detection, self._significance,
-                                c.tracking.confirm_blobness > 0)
+                                c.tracking.confirm_blobness > 0, p.suppressed)
         bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
         if not self.independent_of_tracks(c):  # the defect stage takes the detection's threshold
             bad_pixels, bad_changed = self._own_stages("finish").flag_defects(p.raw, p.suppressed, dets.threshold)
@@ -378,7 +378,7 @@ class FrontEnd:
         region = _with_boxes(stages.region, boxes, result.valid)
         dets = detect(result.suppressed, region, c.detection, stages.zones, noise, result.change)
         dets = score_detections(dets, result.image, region, c.detection, self._significance,
-                                c.tracking.confirm_blobness > 0)
+                                c.tracking.confirm_blobness > 0, result.suppressed)
         lap("detect")
         return replace(result, region=region, noise=noise, detections=dets)
 

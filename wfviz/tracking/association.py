@@ -22,7 +22,9 @@ class Measurements:
     ``significance``: σ above the local noise; ``blobness``: :func:`wfviz.stages.detection.blobness`;
     ``novelty``: how new the detection is at its place in the scene (σ); ``clutter``: its
     static-clutter label (:mod:`wfviz.stages.clutter`: 1 static, 0 not, NaN undecided);
-    ``density``: false detections per pixel around it (:class:`~wfviz.tracking.confirmation.DetectionDensity`).
+    ``density``: false detections per pixel around it (:class:`~wfviz.tracking.confirmation.DetectionDensity`);
+    ``linearity``: how much of it is part of a line or an edge (:func:`wfviz.stages.detection.linearity`),
+    line-like above ``max_linearity`` (:meth:`line_like`).
     """
 
     xy: np.ndarray
@@ -31,9 +33,19 @@ class Measurements:
     novelty: np.ndarray | None = None
     clutter: np.ndarray | None = None
     density: np.ndarray | None = None
+    linearity: np.ndarray | None = None
+    max_linearity: float = 1.0
 
     def __len__(self) -> int:
         return int(len(self.xy))
+
+    def line_like(self) -> np.ndarray:
+        """The detections that are part of a line or an edge (``linearity > max_linearity``;
+        none where it was not measured): they start no track and their hits count as static
+        clutter."""
+        if self.linearity is None:
+            return np.zeros(len(self), dtype=bool)
+        return np.asarray(self.linearity, dtype=np.float64) > self.max_linearity
 
 
 @dataclass(frozen=True)

@@ -37,7 +37,10 @@ class Evidence:
     ``clutter_map``: the scene's clutter map at each track (:class:`~wfviz.tracking.clutter_map.ClutterMap`):
     the counts of persistent unexplained detections and the exposures about it
     (:meth:`~wfviz.tracking.clutter_map.ClutterMap.at`) and how many of this frame's lie in its
-    gate; None: no map."""
+    gate; None: no map;
+
+    ``linearity``: each hit's linearity (:func:`wfviz.stages.detection.linearity`; NaN: no hit,
+    None: not measured), line-like above ``max_linearity``."""
 
     measured: np.ndarray
     missed: np.ndarray
@@ -53,6 +56,14 @@ class Evidence:
     nearest: np.ndarray
     tested_per_frame: float | None
     clutter_map: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
+    linearity: np.ndarray | None = None
+    max_linearity: float = 1.0
+
+    def line_hits(self) -> np.ndarray:
+        """The tracks whose hit this frame is line-like (``linearity > max_linearity``)."""
+        if self.linearity is None:
+            return np.zeros(len(self.measured), dtype=bool)
+        return self.measured & (np.nan_to_num(self.linearity, nan=-np.inf) > self.max_linearity)
 
 
 class Verdict(StrEnum):

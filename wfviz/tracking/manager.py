@@ -259,15 +259,19 @@ class TrackManager:
 
     # -- initiate -------------------------------------------------------------------------
     @staticmethod
-    def initiate(association: Association, start: np.ndarray | bool | None = None) -> np.ndarray:
+    def initiate(association: Association, start: np.ndarray | bool | None = None,
+                 refused: np.ndarray | None = None) -> np.ndarray:
         """The detections that start tentative tracks this frame (indices). By default (None)
         the unused ones outside every confirmed gate. ``start`` False: none (fusion between its
         global detections); a mask (or True): the unused detections it allows, for a caller with
-        its own start rule."""
+        its own start rule. ``refused`` (a mask): detections that start none whatever ``start``
+        says (line-like ones, :meth:`Measurements.line_like`)."""
         if start is False:
             return np.zeros(0, dtype=np.int64)
         born = ~association.used()
         born &= ~association.claimed if start is None else np.asarray(start, dtype=bool)
+        if refused is not None:
+            born &= ~np.asarray(refused, dtype=bool)
         return np.nonzero(born)[0]
 
     # -- update ---------------------------------------------------------------------------
@@ -299,7 +303,9 @@ class TrackManager:
         1 static, 0 not, NaN undecided: a track needs ``min_known`` decided labels with a mean
         ≤ ``max_static`` to be confirmed, unless ``wait`` is off, and a confirmed track above
         ``delete_static`` is deleted); a meeting track's label is that of the detection nearest
-        its extrapolation."""
+        its extrapolation. A line-like detection (:meth:`Measurements.line_like`: part of a road,
+        a wire, an edge) starts no track, and a tentative track whose hit is line-like is not
+        confirmed in that frame (the rule's test "hit not line-like")."""
         d = detections
         pairs = association.pairs
         owner = np.full(len(d), -1, dtype=np.int64)
@@ -318,7 +324,7 @@ class TrackManager:
             labels = {int(i): float(d.clutter[j]) for i, j in enumerate(association.nearest.tolist())
                       if j >= 0 and self.tracks.meeting[i]}
             labels.update({i: float(d.clutter[pairs[i]]) for i in positions})
-        born = self.initiate(association, start)
+        born = self.initiate(association, start, d.line_like())
         births = Measurements(
             np.asarray(d.xy[born], dtype=np.float64).reshape(-1, 2),
             significance=None if d.significance is None else d.significance[born],
@@ -331,6 +337,10 @@ class TrackManager:
         if d.significance is not None:
             significance[rows] = d.significance[det]
         hit_novelty[rows] = novelty[det]
+        hit_linearity = None
+        if d.linearity is not None:
+            hit_linearity = np.full(n, np.nan)
+            hit_linearity[rows] = np.asarray(d.linearity, dtype=np.float64)[det]
         self._measure(rows, z, None if d.significance is None else d.significance[det],
                       None if d.blobness is None else d.blobness[det])
         if labels:  # measured tracks, and meeting tracks with a detection near them
@@ -341,7 +351,7 @@ class TrackManager:
             clutter = np.full(n, np.nan)
             clutter[list(labels)] = list(labels.values())
         self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k,
-                     track_clutter)
+                     track_clutter, hit_linearity, d.max_linearity)
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
@@ -373,7 +383,8 @@ class TrackManager:
     def _decide(self, rows: np.ndarray, z: np.ndarray, nearest: np.ndarray, clutter: np.ndarray | None,
                 density: np.ndarray | None, significance: np.ndarray, novelty: np.ndarray,
                 gate_k: np.ndarray | None,
-                track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> None:
+                track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+                linearity: np.ndarray | None = None, max_linearity: float = 1.0) -> None:
         """Report, count misses, let the rule decide (the :class:`Evidence` of the measured
         ``rows`` with measurements ``z``), end the tracks it deletes and those :meth:`_gone`."""
         t = self.tracks
@@ -398,7 +409,8 @@ class TrackManager:
         ids, was_confirmed = t.ids, t.confirmed.copy()
         out = self.rule.decide(t, Evidence(measured, missed, moved, reported, clutter, density, significance,
                                            novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame,
-                                           track_clutter))
+                                           clutter_map=track_clutter, linearity=linearity,
+                                           max_linearity=max_linearity))
         if out.thresholds is not None:
             self.thresholds = out.thresholds
         confirm, delete, why = out.confirm, out.delete, out.why

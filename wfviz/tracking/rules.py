@@ -70,6 +70,17 @@ def _measured(e: Evidence) -> Statistic:
     return Statistic("hit this frame", e.measured.astype(np.float64), 1.0, ">=", e.measured)
 
 
+def _not_line(e: Evidence) -> Statistic | None:
+    """The test every rule makes before confirming when detections' linearity is measured: this
+    frame's hit is not part of a line or an edge (its linearity at most ``max_linearity``; NaN:
+    no hit, not tested). None: not measured."""
+    if e.linearity is None:
+        return None
+    line = e.line_hits()
+    return Statistic("hit not line-like: linearity", np.asarray(e.linearity, dtype=np.float64).copy(),
+                     e.max_linearity, "<=", ~line)
+
+
 class HitsRule(Rule):
     """The GEWC paper's rule (Zhang Shuai et al. 2018; ``tracking.confirm = "hits"``): a track is
     confirmed at ``confirm_hits`` hits, and with the optional tests not in the paper (mean
@@ -114,6 +125,10 @@ class HitsRule(Rule):
         delete = missed & (tracks.misses >= tc.max_misses)
         hits = tracks.hits.astype(np.float64)
         stats = [_measured(e), Statistic("hits", hits, tc.confirm_hits, ">=", hits >= tc.confirm_hits)]
+        not_line = _not_line(e)
+        if not_line is not None:
+            confirm &= not_line.holds
+            stats.append(not_line)
         if need > 0:
             level = np.where(mover, min(need, tc.confirm_moving_significance), need)
             stats.append(Statistic("mean significance", mean_score, level, ">=", significant))
@@ -199,7 +214,9 @@ class SequentialRule(Rule):
     in the gate, how significant they are) and ``clutter_score`` against static clutter (how new
     the hits are at their place in the scene). A track is confirmed when both reach the
     confirmation level, dropped (tentative) or deleted (confirmed) when ``score`` falls to its
-    level; the birth detection counts as a hit in the first gate.
+    level; the birth detection counts as a hit in the first gate. A tentative track's line-like
+    hit (:meth:`~wfviz.tracking.decision.Evidence.line_hits`) counts as an unchanged one in the
+    test against static clutter, and holds its confirmation back that frame.
 
     A confirmed track is also deleted when it turns into static clutter (a track that left its
     target for a fixed object, or a lamp that moved once): Page's CUSUM (E. S. Page,
@@ -263,11 +280,15 @@ class SequentialRule(Rule):
         change = confirmation.score_change(measured, tc.p_detect, p_fa)
         clutter = np.zeros(n)
         m = np.nonzero(measured)[0]
+        line = e.line_hits()
         if m.size:
             change[m] += confirmation.position_score(tracks.innovation[m], e.S_inv[m], halves[m])
             change[m] += confirmation.amplitude_score(z[m], k_gate[m])
             clutter[m] = confirmation.change_evidence(nov[m], self.detection_threshold,
                                                      tc.static_change_rate, tc.target_change_rate)
+            # a tentative track's line-like hit is evidence for clutter: it counts as unchanged
+            clutter[line & ~tracks.confirmed] = math.log((1.0 - tc.target_change_rate)
+                                                         / (1.0 - tc.static_change_rate))
         # a meeting track takes no measurement: no evidence while a detection lies near its
         # extrapolation, a miss when none does (it has lost its target)
         change[tracks.meeting & ~measured & (e.nearest >= 0)] = 0.0
@@ -290,10 +311,13 @@ class SequentialRule(Rule):
             prior = np.ones(n)
         clutter_level, motion_level = static_levels(th, prior)
         not_clutter = (s.clutter_score >= clutter_level) | (clutter_level <= 0)  # level 0: not needed
-        confirm = measured & ~conf & (s.score >= th.confirm) & not_clutter
+        confirm = measured & ~conf & (s.score >= th.confirm) & not_clutter & ~line
         score, clutter_score = s.score.copy(), s.clutter_score.copy()
         stats += [Statistic("persistence", score, th.confirm, ">=", score >= th.confirm),
                   Statistic("not clutter", clutter_score, clutter_level, ">=", not_clutter)]
+        not_line = _not_line(e)
+        if not_line is not None:
+            stats.append(not_line)
         if tc.require_motion:
             t2, steady = np.full(n, np.nan), np.full(n, np.nan)
             # steady progress is asked for wherever motion is

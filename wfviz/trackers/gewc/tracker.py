@@ -111,7 +111,7 @@ class GEWCTracker:
             track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
-                                self.density.at(dets.xy)),
+                                self.density.at(dets.xy), dets.linearity, dets.max_linearity),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
             gate_k=gate_k, frame_shape=fe.image.shape, track_clutter=track_clutter)
         lap("kalman")
@@ -194,7 +194,7 @@ class GEWCTracker:
     def _could_confirm(self, dets: Detections, labels: np.ndarray | None) -> np.ndarray:
         """Detections that pass the confirmation tests in use one by one (new in the scene for
         the sequential test; significance, blobness, not static clutter for the paper's rule
-        with its options): the ones a lost track may re-acquire."""
+        with its options; not line-like): the ones a lost track may re-acquire."""
         t = self.config.tracking
         ok = np.ones(len(dets), dtype=bool)
         if t.confirm == "sprt" and dets.change is not None:  # new at its place in the scene
@@ -205,7 +205,7 @@ class GEWCTracker:
             ok &= dets.blobness >= t.confirm_blobness
         if labels is not None:
             ok &= labels != 1
-        return ok
+        return ok & ~dets.line_like()
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray, noise: NoiseEstimate | None = None) -> dict[int, Measurement]:
