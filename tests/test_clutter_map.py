@@ -96,3 +96,17 @@ def test_levels_fall_with_the_prior_and_are_full_without_it(prior):
     else:
         assert 0 < clutter_level[0] < th.confirm and 0 < motion_level[0] < th.motion
     assert static_prior(np.array([0.0]), np.array([1e9]), np.array([0.0]))[0] < 1e-6
+
+
+def test_the_map_and_each_tracks_prior_are_recorded(tmp_path):
+    from typer.testing import CliRunner
+    from rerun.chunk import RrdReader
+
+    from wfviz.cli import app
+
+    out = tmp_path / "r.rrd"
+    res = CliRunner().invoke(app, ["record", "synth:fov70-maneuver", "--stop", "20", "-o", str(out)])
+    assert res.exit_code == 0, res.output
+    paths = {str(ch.entity_path) for ch in RrdReader(out).stream()}
+    assert "/clutter/map" in paths
+    assert any(p.endswith("/clutter_map_static_prior") for p in paths)

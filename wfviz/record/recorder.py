@@ -201,7 +201,8 @@ def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
 
 
 #: the entities that are images of the frame (raw, stage and map images, masks)
-IMAGE_ENTITIES = ("camera/image", "camera/mask", "camera/search_region", "suppressed/image", "suppressed/noise")
+IMAGE_ENTITIES = ("camera/image", "camera/mask", "camera/search_region", "suppressed/image", "suppressed/noise",
+                  "clutter/map")
 
 
 def pixel_centres(rec: Any, paths: tuple[str, ...] = IMAGE_ENTITIES) -> None:

@@ -43,6 +43,10 @@ class GEWCResult(FrontEndTrackResult):
 
     measurements: tuple[Measurement, ...]
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
+    #: the clutter map's static-clutter prior per ``tracking.clutter_cell`` block of the image
+    #: (:meth:`wfviz.tracking.clutter_map.ClutterMap.view`; None: no map)
+    clutter_map: np.ndarray | None = None
+    clutter_cell: int = 16  #: px, the side of the clutter map's cells
 
 
 class GEWCTracker:
@@ -121,7 +125,9 @@ class GEWCTracker:
             predictions=tuple(preds), detections=dets, events=tuple(events), timings=timings, front=fe,
             verdicts=self.manager.verdicts, detection_tracks=self.manager.detection_tracks,
             innovations=self.manager.innovations(), thresholds=self.manager.thresholds,
-            measurements=tuple(meas.values()), clutter=labels)
+            measurements=tuple(meas.values()), clutter=labels,
+            clutter_map=None if self.clutter_map is None else -np.expm1(-self.clutter_map.view(shape, fe.offset)),
+            clutter_cell=c.tracking.clutter_cell)
 
     def _persistent(self, xy: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Detections ``xy`` with one of the previous frame within ``PERSIST_RADIUS`` px of the
