@@ -76,7 +76,8 @@ SERIES_NAMES = {
     "detection/static": "static clutter", "detection/global": "global detection (1/0)",
     "registration/dx": "dx (px)", "registration/dy": "dy (px)", "registration/moving": "moving (1/0)",
     "registration/corners": "corners agreeing", "registration/confidence": "confidence (0-1)",
-    "registration/residual": "flow residual (px)", "defects/count": "defect pixels replaced",
+    "registration/residual": "residual (px)", "registration/fallback": "phase correlation (1/0)",
+    "defects/count": "defect pixels replaced",
     "eval/missed": "missed", "eval/false_alarms": "false alarms", "tracks/confirm_level": "confirmation level",
 }
 
@@ -376,6 +377,7 @@ class Recorder:
         self._region_logged: np.ndarray | None = None  # the search region last logged
         self._front_started = False
         self._motion_lost = False
+        self._motion_fallback = False
         self._defects_replaced = 0  # flagged at the end of the last frame: replaced in this one
         self._defects_high = False
         self._trails: dict[int, deque] = {}
@@ -628,23 +630,32 @@ class Recorder:
             (front.valid & ~region).view(np.uint8), draw_order=DRAW_SEARCH_REGION))
 
     def _log_motion(self, camera: CameraState) -> None:
-        """``registration/*``: the shift (NaN when the flow was lost: unknown, never "still"), whether
-        the camera moves, the corners that agreed, the confidence and the flow's residual; a WARN line
-        when the motion is lost and when it is measured again (filtering WARN shows both ends)."""
-        reliable = camera.reliable
+        """``registration/*``: the shift (NaN when it is unknown, never "still"), whether the
+        camera moves, the corners that agreed, the confidence, the residual and whether the
+        phase-correlation fallback measured it; a WARN line when the motion is lost and when it
+        is measured again (filtering WARN shows both ends), and one when the fallback takes over
+        from the flow."""
+        reliable, fallback = camera.reliable, camera.method == "phase"
         self.scalar("registration/dx", camera.shift[0] if reliable else np.nan)
         self.scalar("registration/dy", camera.shift[1] if reliable else np.nan)
         self.scalar("registration/moving", 1.0 if camera.moving else 0.0)
         self.scalar("registration/corners", camera.corners)
         self.scalar("registration/confidence", camera.confidence)
         self.scalar("registration/residual", camera.residual)
+        self.scalar("registration/fallback", 1.0 if fallback else 0.0)
         if not reliable and not self._motion_lost:
-            self.text(f"camera motion lost: {camera.corners} corners agreed on the flow; the camera's shift is "
-                      "unknown (tracks are not moved)", "WARN")
+            self.text(f"camera motion lost: {camera.corners} corners agreed on the flow and phase correlation found "
+                      "no shift the frame's halves agree on; the camera's shift is unknown (tracks are not moved"
+                      f"{'; no motion test spans this frame' if camera.moving else ''})", "WARN")
         elif reliable and self._motion_lost:
-            self.text(f"camera motion measured again: {camera.corners} corners agree "
-                      f"(confidence {camera.confidence:.2f})", "WARN")
+            how = (f"by phase correlation (response {camera.confidence:.2f})" if fallback else
+                   f"{camera.corners} corners agree (confidence {camera.confidence:.2f})")
+            self.text(f"camera motion measured again: {how}", "WARN")
+        elif fallback and not self._motion_fallback:
+            self.text(f"camera motion measured by phase correlation: only {camera.corners} corners agreed on the "
+                      f"flow (response {camera.confidence:.2f}, halves {camera.residual:.1f} px apart)", "WARN")
         self._motion_lost = not reliable
+        self._motion_fallback = fallback
 
     def _log_common(self, result: FrameResult) -> None:
         rec = self.rec

@@ -126,6 +126,12 @@ class TrackManager:
         self.tracks.shift(d)
         self.offset += d
 
+    def motion_unknown(self) -> None:
+        """The camera moves and its shift in this frame is unknown: the scene positions measured
+        so far are in another frame of reference than those from now on, so no track's motion
+        test compares across it (each track's series of scene positions starts again)."""
+        self.tracks.motion_ok[:] = False
+
     # -- predict --------------------------------------------------------------------------
     def _meeting_state(self, i: int) -> np.ndarray:
         """Next state of track ``i`` in meeting mode: linear extrapolation of its own motion."""

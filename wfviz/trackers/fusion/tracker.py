@@ -209,9 +209,9 @@ class FusionTracker:
         return min_side(self.config.suppression, self.config.horizon)
 
     def step(self, frame: Frame) -> FusionResult:
-        """Run every stage on one frame, in the order of docs/pipeline.md: predict (before the
-        camera shift: the predictions, windows and gates are in the previous frame's image),
-        prepare, the tracks moved with the camera, finish (detection in the windows or the
+        """Run every stage on one frame, in the order of docs/pipeline.md: predict, prepare, the
+        tracks and their predictions moved with the camera (the windows and gates are in this
+        frame's image), finish (detection in the windows or the
         whole frame, with the confirmed gates), associate (with global re-detection), update."""
         fc = self.config.fusion
         timer = StageTimer(("defects", "mask", "horizon", "camera", "suppress", "noise", "change",
@@ -241,8 +241,15 @@ class FusionTracker:
         lost: list[int] = []
         # a window frame is prepared for its windows: the noise statistics and the horizon stay
         prepared = self.front.prepare(frame.image, lap, whole=bool(reason), update_horizon=bool(reason))
-        if prepared.camera is not None:  # the tracks' states only: the predictions stay as made
-            mgr.shift(*prepared.camera.shift)
+        if prepared.camera is not None:  # the tracks and their predictions move with the camera
+            camera = prepared.camera
+            mgr.shift(*camera.shift)
+            if camera.moving and not camera.reliable:
+                mgr.motion_unknown()
+            if camera.shift != (0.0, 0.0):
+                preds = [replace(p, x=p.x + camera.shift[0], y=p.y + camera.shift[1]) for p in preds]
+                pred_xy = pred_xy + np.asarray(camera.shift)
+                gates = gate_boxes(preds, shape[:2])
         if not reason:
             search = [i for i in range(len(preds)) if active[i]]
             windows, searched = self._window_mask(preds, search, shape)

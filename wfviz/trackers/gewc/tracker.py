@@ -161,10 +161,12 @@ class GEWCTracker:
 
     def _predict(self, index: int, camera: CameraState | None) -> list[Prediction]:
         """The tracks moved by the camera's shift of this frame (``camera``; None: not
-        compensated), then advanced to frame ``index``: the predictions are in this frame's
-        image."""
+        compensated; unknown on a moving camera: no motion test across this frame), then
+        advanced to frame ``index``: the predictions are in this frame's image."""
         if camera is not None:
             self.manager.shift(*camera.shift)
+            if camera.moving and not camera.reliable:
+                self.manager.motion_unknown()
         return self.manager.predict(index)
 
     def _gate_thresholds(self, preds: list) -> np.ndarray | None:
