@@ -328,9 +328,10 @@ def test_confirmed_track_tests_are_series_against_their_levels(evidence_rrd: Pat
     assert value >= level > 0  # it passed the test it was confirmed by
     assert _static(evidence_rrd, f"/tests/{tid}/persistence", "SeriesLines:names") == [
         [f"track {tid}", f"track {tid} level"]]
-    # the eight hot pixels' tentative tracks are replaced before they are old enough to be shown
+    # besides the target, at most the eight hot pixels' tentative tracks are old enough to be
+    # shown (with the clutter map a track may be confirmed in fewer hits than the motion test's 6)
     shown = {e.split("/")[2] for e in entities if e.startswith("/tests/")}
-    assert shown == {str(tid)}, shown
+    assert str(tid) in shown and len(shown) <= 1 + 8, shown
 
 
 def test_held_back_track_is_logged_once(tmp_path: Path) -> None:
