@@ -136,6 +136,7 @@ class Motion:
     velocity: np.ndarray
     steady: np.ndarray
     t2: np.ndarray
+    steady_error: np.ndarray  #: standard error of ``steady`` under the position scatter σ (px)
 
 
 def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> Motion:
@@ -174,7 +175,10 @@ def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) ->
     enough = npos >= 3
     t2 = np.where(enough, speed ** 2 * np.nan_to_num(sxx) / sigma ** 2, 0.0)
     del span
-    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok), t2)
+    # a third's median of k positions scatters by 1.2533 σ / √k; a progress is a difference of two
+    third = np.maximum(npos // 3, 1)
+    error = np.sqrt(2.0) * 1.2533 * sigma / np.sqrt(third)
+    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok), t2, error)
 
 
 def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:

@@ -26,6 +26,7 @@ from wfviz.tracking.decision import Decisions, Evidence, Statistic
 from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
 MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per third
+STEADY_Z = 4.0  # steady progress: standard errors of the thirds' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 
@@ -326,6 +327,9 @@ class SequentialRule(Rule):
                 r = np.nonzero(confirm)[0]
                 mo = confirmation.motion(tracks.motion_t[r], tracks.motion_xy[r], tracks.motion_ok[r],
                                          tc.position_noise)
+                if STEADY_Z > 0:  # significant progress in both halves suffices below min_motion / 2
+                    steady_level[r] = np.where(steady_level[r] > 0,
+                                               np.minimum(steady_level[r], STEADY_Z * mo.steady_error), 0.0)
                 confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
                 t2[r], steady[r] = mo.t2, mo.steady
             stats += [Statistic("motion: T²", t2, motion_level, ">=", t2 >= motion_level),
