@@ -312,3 +312,21 @@ def test_a_confirmed_track_is_followed_below_the_horizon(cross):
                 assert np.hypot(t.x - x, t.y - y) < 3.0  # only the target, never the ground
                 below += on_ground
     assert (below >= 8) if cross else (below == 0)
+
+
+def test_sky_below_when_the_sky_above_lies_only_on_skipped_rows():
+    """The sky above the path is sampled on every other pixel; where it lies only on the rows or
+    columns that skips, the statistics are taken on all of it (it crashed before)."""
+    from wfviz.stages.horizon import BoundaryEvidence, sky_below
+
+    h, w = 40, 64
+    rng = np.random.default_rng(0)
+    ev = BoundaryEvidence(evidence=np.zeros((h, w), np.float32),
+                          texture=rng.random((h, w)).astype(np.float32),
+                          level=rng.random((h, w)).astype(np.float32), floor=0.01)
+    valid = np.zeros((h, w), bool)
+    valid[1, 1:33:2] = True                      # 16 imaging pixels above the path, odd row and columns
+    valid[8:] = True
+    path = np.full(w, 8)
+    out = sky_below(ev, valid, path)
+    assert out.shape == (h, w) and np.isfinite(out).all()

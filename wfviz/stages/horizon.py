@@ -508,6 +508,8 @@ def sky_below(ev: BoundaryEvidence, valid: np.ndarray, path: np.ndarray) -> np.n
         return np.zeros(ev.level.shape, np.float32)
     sub = (slice(None, None, 2), slice(None, None, 2))      # statistics on every other pixel
     la, ta = ev.level[sub][above[sub]], ev.texture[sub][above[sub]]
+    if la.size < 4:  # the sky above lies on the rows or columns the subsampling skips
+        la, ta = ev.level[above], ev.texture[above]
     lo, hi = np.percentile(la, [5, 95])
     rough = max(float(np.percentile(ta, 95)), ev.floor)
     like = valid & (ev.level >= lo) & (ev.level <= hi) & (ev.texture <= rough)
