@@ -118,8 +118,9 @@ def _confirmed(frames: list[np.ndarray]) -> set[int]:
 def test_scene_positions_are_not_compared_across_frames_of_unknown_motion(monkeypatch, forget: bool) -> None:
     """Static spots on textured ground under a pan of 1.5 px a frame; from frame 8 the camera's
     motion is lost (unknown, the camera known to move). The tracks are not moved, so the spots
-    slide through them; the motion test compares no scene positions across the lost frames,
-    and no spot is confirmed. Without that rule (``forget`` False) they are confirmed as movers."""
+    slide through them; the motion test compares no scene positions across the lost frames, the
+    change stage compares nothing with the scene's past (and forgets it), and no spot is
+    confirmed. Without these rules (``forget`` False) they are confirmed as movers."""
     from wfviz.tracking import TrackManager
 
     update = CameraMotion.update
@@ -140,6 +141,7 @@ def test_scene_positions_are_not_compared_across_frames_of_unknown_motion(monkey
     monkeypatch.setattr(CameraMotion, "update", remember)
     if not forget:
         monkeypatch.setattr(TrackManager, "motion_unknown", lambda self: None)
+        monkeypatch.setattr(CameraState, "lost", property(lambda self: False))
     frames, _ = pan(ground(texture=30.0, spots=120), [(1.5, 0.0)] * 40)
     confirmed = _confirmed(frames)
     assert (not confirmed) if forget else confirmed
@@ -181,3 +183,16 @@ def test_a_camera_re_pointing_over_spotted_ground_gives_no_track_and_warns(tmp_p
             fallback.update(zip(b.column("frame").to_pylist(), [v[0] for v in b.column(col).to_pylist()]))
     assert sorted(fallback) == list(range(len(frames)))
     assert set(fallback.values()) == {0.0, 1.0} and fallback[warned[0][0]] == 1.0
+
+
+def test_the_change_stage_forgets_the_past_when_the_motion_is_lost() -> None:
+    from wfviz.stages.background import TemporalBackground
+
+    tb = TemporalBackground(lag=4)
+    img = np.ones((16, 16), np.float32)
+    assert tb.update(img, (0.0, 0.0), moving=True) is None      # no past on the first frame
+    assert tb.update(img, (1.0, 0.0), moving=True) is not None
+    tb.forget()
+    assert tb.update(img, (2.0, 0.0), moving=True) is None      # a new history, as on the first frame
+    assert CameraState((0.0, 0.0), (0.0, 0.0), True, 0, False).lost
+    assert not CameraState((0.0, 0.0), (0.0, 0.0), False, 0, False).lost   # still camera: nothing to lose

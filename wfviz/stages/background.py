@@ -47,6 +47,12 @@ class TemporalBackground:
         self._count = 0
         self._still = True
 
+    def forget(self) -> None:
+        """Drop the past (the camera's motion was lost: the stored images are no longer
+        registered to the frames to come); the next frame starts a new history, as the first."""
+        self._ring.clear()
+        self._mean, self._count = None, 0
+
     def update(self, residual: np.ndarray, offset: np.ndarray | tuple[float, float],
                moving: bool = False) -> np.ndarray | None:
         """This frame's background (float32, or None on the first frame); then remembers it.
@@ -56,8 +62,7 @@ class TemporalBackground:
         off = np.asarray(offset, dtype=np.float64)
         ring = self._ring
         if ring and ring[-1][0].shape != r.shape:
-            ring.clear()
-            self._mean, self._count = None, 0
+            self.forget()
         if moving:
             self._still = False
         background = None

@@ -260,10 +260,16 @@ class Preparer:
         sampled peak depends on where it falls between pixels), against the scene's past, in
         units of the change's own spread and from 0 (static structure is unchanged whatever the
         change image's typical level). ``learn_spread``: re-estimate that spread (else the last
-        one)."""
+        one). None when there is no past to compare with: the first frame, and a frame whose
+        camera motion is unknown after the camera has moved (the past is then forgotten)."""
         c = self.config
-        raw_residual = suppressed if raw is img else suppress_background(raw, c.suppression.size,
-                                                                          c.suppression.method)
+        if camera is not None and camera.lost:
+            # the camera's motion is unknown: nothing here can be compared with the scene's past,
+            # and the past stored so far will not be registered to the frames to come
+            self.temporal.forget()
+            return None
+        raw_residual = suppress_background(raw, c.suppression.size, c.suppression.method) if raw is not img \
+            else suppressed
         now = cv2.GaussianBlur(raw_residual.astype(np.float32), (0, 0), 1.0)
         background = self.temporal.update(now, self._offset, camera is not None and camera.moving)
         if background is None:

@@ -75,6 +75,12 @@ class CameraState:
     residual: float = 0.0
     method: str = "flow"
 
+    @property
+    def lost(self) -> bool:
+        """The camera has moved and this frame's motion is unknown: what is seen now cannot be
+        placed in the scene (compared with the past, or learnt as the scene)."""
+        return self.moving and not self.reliable
+
 
 class CameraMotion:
     """Streams frames; :meth:`update` returns the :class:`CameraState` of each."""

@@ -110,9 +110,13 @@ class GEWCTracker:
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
         track_clutter = None
         if self.clutter_map is not None:
-            counted, mine = self._unexplained(dets, preds, assoc.pairs, fe.offset)
-            self.clutter_map.update(dets.xy[counted], fe.region, fe.offset)
-            track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
+            lost = fe.camera is not None and fe.camera.lost
+            if lost:  # the scene position of what is seen now is unknown: nothing is learnt
+                self._last_scene = None
+            else:
+                counted, mine = self._unexplained(dets, preds, assoc.pairs, fe.offset)
+                self.clutter_map.update(dets.xy[counted], fe.region, fe.offset)
+            track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine if not lost else np.zeros(len(preds)))
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy), dets.linearity, dets.max_linearity),
