@@ -129,19 +129,22 @@ class Motion:
     / σ², with σ the robust scatter of the positions about that line (1.4826 × median absolute
     residual, at least ``sigma_floor``): about χ² with 2 degrees of freedom for a track that does
     not move; ``steady``: the least progress made in the direction of travel from the median
-    position of the oldest third of the positions to that of the middle third, and from there
-    to the newest third (px): a target keeps moving, a centroid that jumps once to a
-    neighbouring spot makes its progress in one third only."""
+    position of each of ``parts`` consecutive parts of the positions (oldest first) to that of
+    the next (px): a target keeps moving, a centroid that jumps once to a neighbouring spot makes
+    its progress between two neighbouring parts only, or splits it over the two differences
+    next to the part the jump falls in; with 4 parts a third difference stays free of it."""
 
     velocity: np.ndarray
     steady: np.ndarray
     t2: np.ndarray
     steady_error: np.ndarray  #: standard error of ``steady`` under the position scatter σ (px)
+    parts: np.ndarray  #: parts ``steady`` was measured over: ``parts`` where 2 positions per part are recorded, else 3
 
 
-def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) -> Motion:
+def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, parts: int = 3) -> Motion:
     """:class:`Motion` of each track from positions ``xy`` (N, K, 2) at frames ``t`` (N, K)
-    where ``ok`` (N, K). Pairs, not a least-squares line: a centroid that jumps once to a
+    where ``ok`` (N, K), its steady progress over ``parts`` parts (fewer, at least 3, while
+    there are fewer than 2 positions per part). Pairs, not a least-squares line: a centroid that jumps once to a
     neighbouring spot and stays there, or hops back and forth, moves neither the median slope
     nor the median residual much (up to about 29 % of the pairs may be wild). Zero with fewer
     than 3 positions."""
@@ -175,26 +178,30 @@ def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float) ->
     enough = npos >= 3
     t2 = np.where(enough, speed ** 2 * np.nan_to_num(sxx) / sigma ** 2, 0.0)
     del span
-    # a third's median of k positions scatters by 1.2533 σ / √k; a progress is a difference of two
-    third = np.maximum(npos // 3, 1)
-    error = np.sqrt(2.0) * 1.2533 * sigma / np.sqrt(third)
-    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok), t2, error)
+    # a part's median of k positions scatters by 1.2533 σ / √k; a progress is a difference of two
+    n_parts = np.clip(npos // 2, 3, max(parts, 3))
+    part = np.maximum(npos // n_parts, 1)
+    error = np.sqrt(2.0) * 1.2533 * sigma / np.sqrt(part)
+    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok, n_parts), t2, error, n_parts)
 
 
-def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
-    """:attr:`Motion.steady` of each track (0 with fewer than 6 positions)."""
+def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) -> np.ndarray:
+    """:attr:`Motion.steady` of each track over its ``parts`` (0 with fewer than 2 positions
+    per part): the oldest and newest parts hold ``n // parts`` positions each, the middle ones
+    share the rest."""
     out = np.zeros(len(t))
     for i in range(len(t)):
         p = xy[i][ok[i]][np.argsort(t[i][ok[i]])]
-        k = len(p) // 3
+        n_parts = int(parts[i])
+        k = len(p) // n_parts
         if k < 2:
             continue
-        m1, m2, m3 = (np.median(q, axis=0) for q in (p[:k], p[k:len(p) - k], p[len(p) - k:]))
-        d = m3 - m1
+        inner = np.array_split(p[k:len(p) - k], n_parts - 2)
+        m = np.array([np.median(q, axis=0) for q in (p[:k], *inner, p[len(p) - k:])])
+        d = m[-1] - m[0]
         norm = float(np.hypot(*d))
         if norm > 0:
-            u = d / norm
-            out[i] = min(float((m2 - m1) @ u), float((m3 - m2) @ u))
+            out[i] = float(np.min(np.diff(m, axis=0) @ (d / norm)))
     return out
 
 

@@ -25,7 +25,8 @@ from wfviz.tracking.clutter_map import static_rate
 from wfviz.tracking.decision import Decisions, Evidence, Statistic
 from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
-MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per third
+STEADY_PARTS = 4  # confirmation.motion: parts of the history between which steady progress is asked for (chosen on real half A)
+MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per part (at least 3 parts)
 STEADY_Z = 4.0  # steady progress: standard errors of the thirds' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
@@ -326,8 +327,10 @@ class SequentialRule(Rule):
             if confirm.any():
                 r = np.nonzero(confirm)[0]
                 mo = confirmation.motion(tracks.motion_t[r], tracks.motion_xy[r], tracks.motion_ok[r],
-                                         tc.position_noise)
-                if STEADY_Z > 0:  # significant progress in both halves suffices below min_motion / 2
+                                         tc.position_noise, STEADY_PARTS)
+                # min_motion shared by the parts' differences (min_motion / 2 over 3 parts)
+                steady_level[r] = np.where(steady_level[r] > 0, tc.min_motion / (mo.parts - 1), 0.0)
+                if STEADY_Z > 0:  # significant progress between all parts suffices below that
                     steady_level[r] = np.where(steady_level[r] > 0,
                                                np.minimum(steady_level[r], STEADY_Z * mo.steady_error), 0.0)
                 confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
