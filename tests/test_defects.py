@@ -13,6 +13,7 @@ import numpy as np
 import pytest
 
 from wfviz.io.frames import Frame
+from wfviz.synth.demo import demo_clip
 from wfviz.synth.psf import add_gaussian_spot
 from wfviz.trackers import make_tracker
 from wfviz.trackers.gewc.config import GEWCConfig
@@ -127,3 +128,87 @@ def test_dead_pixels_are_flagged_and_leave_no_track():
         res = trk.step(Frame(f.index, f.time, img))
     assert (60, 90) in {tuple(p) for p in res.front.bad_pixels}
     assert not any(abs(t.x - 90) < 4 and abs(t.y - 60) < 4 for t in res.tracks if t.confirmed)
+
+
+# -- defects from time, not space (issue 35): the demo has none; injected ones are found ---------
+
+HOT = ((150, 320), (200, 250), (400, 300), (380, 420))  # (row, col): sky, sky, textured ground, ground
+DEAD = ((120, 400), (420, 250))
+DEMO_FRAMES = 80
+
+
+def _demo_flags(inject: bool) -> tuple[list[set[tuple[int, int]]], list[list[tuple[float, float]]]]:
+    """Default GEWC over the demo's first frames (with ``inject``: the HOT pixels at a constant
+    15 000 DN and the DEAD ones at 0): the flagged pixels and the targets' (x, y) per frame."""
+    clip = demo_clip(n_frames=DEMO_FRAMES)
+    trk = make_tracker("gewc")
+    flagged, targets = [], []
+    for f in clip.frames():
+        img = f.image
+        if inject:
+            img = img.copy()
+            for r, c in HOT:
+                img[r, c] = 15000
+            for r, c in DEAD:
+                img[r, c] = 0
+        res = trk.step(Frame(f.index, f.time, img))
+        flagged.append({(int(r), int(c)) for r, c in res.front.bad_pixels})
+        targets.append([(t.x, t.y) for t in clip.truth_at(f.index)])
+    return flagged, targets
+
+
+@pytest.fixture(scope="module")
+def demo_runs() -> dict[bool, tuple[list[set[tuple[int, int]]], list[list[tuple[float, float]]]]]:
+    return {inject: _demo_flags(inject) for inject in (False, True)}
+
+
+def test_demo_flags_no_defects(demo_runs) -> None:
+    """The demo (sky, textured ground, buildings, no sensor defects) flags nothing, in any frame."""
+    flagged, _ = demo_runs[False]
+    assert max(len(f) for f in flagged) == 0
+
+
+def test_injected_hot_and_dead_pixels_are_flagged(demo_runs) -> None:
+    """The demo with 4 hot and 2 dead pixels injected (on sky and textured ground): every one is
+    flagged by frame 6 and stays flagged to the end; nothing else is ever flagged."""
+    flagged, _ = demo_runs[True]
+    true = set(HOT) | set(DEAD)
+    assert all(true <= f for f in flagged[6:])
+    assert all(f <= true for f in flagged)
+
+
+def test_moving_targets_are_never_flagged(demo_runs) -> None:
+    """No flagged pixel within 3 px of any of the demo's moving targets, in any frame."""
+    for flagged, targets in demo_runs.values():
+        for f, xy in zip(flagged, targets):
+            assert not [(r, c) for r, c in f for x, y in xy if np.hypot(c - x, r - y) <= 3]
+
+
+@pytest.mark.parametrize("speed", [0.1, 0.3, 1.0])
+def test_slow_small_target_is_not_flagged(speed: float) -> None:
+    """A small target (σ 0.7 px) that creeps over the sensor at ``speed`` px a frame is never
+    flagged, while a hot pixel in the same frames is."""
+    rng = np.random.default_rng(3)
+    trk = make_tracker("gewc")
+    for k in range(50):
+        img = 1000.0 + rng.normal(0, 10, (100, 120))
+        x, y = 30.5 + speed * k, 50.5 + 0.3 * speed * k
+        add_gaussian_spot(img, x, y, 150.0, 0.7)
+        img[40, 90] += 400.0
+        res = trk.step(Frame(k, k / 20, img.astype(np.uint16)))
+        bp = res.front.bad_pixels
+        assert not len(bp) or np.hypot(bp[:, 1] - x, bp[:, 0] - y).min() > 3
+    assert (40, 90) in {tuple(p) for p in bp.tolist()}
+
+
+def test_a_defect_that_stops_is_unflagged() -> None:
+    """A hot pixel that stops being hot (frame 20) is unflagged within a few frames."""
+    trk = make_tracker("gewc")
+    for f in frames(40, hot=((40, 50),)):
+        img = f.image.copy()
+        if f.index >= 20:
+            img[40, 50] = img[39, 50]
+        res = trk.step(Frame(f.index, f.time, img))
+        if f.index == 19:
+            assert (40, 50) in {tuple(p) for p in res.front.bad_pixels.tolist()}
+    assert (40, 50) not in {tuple(p) for p in res.front.bad_pixels.tolist()}

@@ -240,13 +240,14 @@ def evidence_rrd(tmp_path_factory) -> Path:
 
 
 def _rows(rrd: Path, entity: str, column: str) -> dict[int, list]:
-    """{frame: the row's values of ``column``} of a temporal entity."""
+    """{frame: the values of ``column`` of a temporal entity's rows of that frame, in order}."""
     out: dict[int, list] = {}
     for chunk in RrdReader(rrd).stream():
         if chunk.entity_path == entity and not chunk.is_static:
             b = chunk.to_record_batch()
             if column in b.schema.names:
-                out.update(zip(b.column("frame").to_pylist(), b.column(column).to_pylist()))
+                for f, v in zip(b.column("frame").to_pylist(), b.column(column).to_pylist()):
+                    out[f] = out.get(f, []) + (v if isinstance(v, list) else [v])
     return out
 
 
@@ -288,8 +289,8 @@ def test_explanation_is_recorded_with_cause_classes(evidence_rrd: Path) -> None:
 
 def test_motion_lost_is_unknown_and_defects_are_counted(evidence_rrd: Path) -> None:
     """Flat noise has no corners for the flow: from frame 1 the shift is NaN (unknown, never
-    0 = still), the confidence 0, one WARN line says so; the eight hot pixels, flagged on frame 3,
-    are replaced from frame 4 (8 > 0.1 % of 4096 pixels: one WARN line)."""
+    0 = still), the confidence 0, one WARN line says so; the eight hot pixels, flagged on frame 4,
+    are replaced from frame 5 (8 > 0.1 % of 4096 pixels: one WARN line)."""
     dx, dy = _scalars(evidence_rrd, "/registration/dx"), _scalars(evidence_rrd, "/registration/dy")
     assert sorted(dx) == sorted(dy) == list(range(N_EVIDENCE))
     assert dx[0] == 0.0 and all(np.isnan(dx[f]) and np.isnan(dy[f]) for f in range(1, N_EVIDENCE))

@@ -60,14 +60,22 @@ class HorizonConfig:
 
 @dataclass(frozen=True)
 class DefectsConfig:
-    """Hot and dead pixels: persistent one-pixel outliers, flagged and replaced by their 3x3 median."""
+    """Hot and dead pixels: one-pixel outliers that stay at the same sensor position over many
+    frames (their time-averaged deviation from the 3x3 median), replaced by their 3x3 median."""
 
     enabled: bool = True
-    spike_ratio: float = field(default=0.8, metadata=value_range(0.0, 1.0))
+    # weight of this frame in the time averages (1 / rate: about the frames remembered)
     rate: float = field(default=0.3, metadata=value_range(0.01, 1.0))
-    flag_level: float = field(default=0.75, metadata=value_range(0.01, 1.0))
-    # a spike above level + k_sigma local noise σ (the "cfar" detection's typical threshold at
-    # this k) is a hot-pixel candidate; global/local detection: the detection's own threshold
+    # the average deviation is at least this many times its spread over time
+    steady: float = field(default=3.0, metadata=value_range(0.0, None))
+    # ... and at least this fraction of its height above the darkest pixel of its 5x5
+    # neighbourhood (below the brightest: dead) in the frames' time average
+    sharp: float = field(default=0.5, metadata=value_range(0.0, 1.0))
+    # ... and at least this many times the mean step between adjacent pixels of the 7x7
+    # neighbourhood (the pixel itself left out) in the frames' time average
+    contrast: float = field(default=6.0, metadata=value_range(0.0, None))
+    # ... and above level + k_sigma local noise σ (the "cfar" detection's typical threshold at
+    # this k); global/local detection: the detection's own threshold
     k_sigma: float = field(default=4.0, metadata=value_range(0.0, None))
 
 

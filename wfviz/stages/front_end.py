@@ -227,7 +227,7 @@ class Preparer:
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
             # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
-            bad_changed = self.bad.update(raw, suppressed, typical_threshold(noise, c.defects.k_sigma))
+            bad_changed = self.bad.update(raw, typical_threshold(noise, c.defects.k_sigma))
             lap("defects")
         return PreparedFrame(image=img, raw=raw, mask=mask, mask_changed=mask_changed, valid=valid,
                              circle=self.circle, horizon=horizon, horizon_updated=horizon_updated,
@@ -235,10 +235,10 @@ class Preparer:
                              offset=self._offset.copy(), suppressed=suppressed, noise=noise, change=change,
                              bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed)
 
-    def flag_defects(self, raw: np.ndarray, suppressed: np.ndarray, threshold: float) -> tuple[np.ndarray, bool]:
+    def flag_defects(self, raw: np.ndarray, threshold: float) -> tuple[np.ndarray, bool]:
         """The defect stage's evidence of this frame at the detection's ``threshold`` (global or
         box detection): the flagged pixels, and whether they changed."""
-        changed = self.bad.update(raw, suppressed, threshold)
+        changed = self.bad.update(raw, threshold)
         return self.bad.flagged, changed
 
     def renoise(self, suppressed: np.ndarray, image: np.ndarray) -> NoiseEstimate | None:
@@ -364,7 +364,7 @@ class FrontEnd:
                                 c.tracking.confirm_blobness > 0, p.suppressed)
         bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
         if not self.independent_of_tracks(c):  # the defect stage takes the detection's threshold
-            bad_pixels, bad_changed = self._own_stages("finish").flag_defects(p.raw, p.suppressed, dets.threshold)
+            bad_pixels, bad_changed = self._own_stages("finish").flag_defects(p.raw, dets.threshold)
         lap("detect")
         return FrontEndResult.of(p, region=region, detections=dets, bad_pixels=bad_pixels,
                                  bad_pixels_changed=bad_changed)
