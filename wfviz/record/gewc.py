@@ -45,8 +45,9 @@ class GEWCRecorder(Recorder):
             self.image("suppressed/image", result.front.suppressed)
             if result.clutter_map is not None:  # one value per cell, drawn over the frame's pixels
                 h, w = result.front.suppressed.shape[:2]
-                cell = result.clutter_cell
-                up = np.repeat(np.repeat(result.clutter_map.astype(np.float32), cell, 0), cell, 1)[:h, :w]
+                cell = result.clutter_map.cell
+                prior = result.clutter_map.prior((h, w), result.front.offset).astype(np.float32)
+                up = np.repeat(np.repeat(prior, cell, 0), cell, 1)[:h, :w]
                 self.image("clutter/map", up, value_map=True)
         if result.clutter is not None:  # static clutter stage (clutter.enabled)
             if not self._clutter_started:

@@ -27,6 +27,8 @@ parts do not teach the map that its own place is clutter.
 
 from __future__ import annotations
 
+from dataclasses import dataclass
+
 import numpy as np
 
 from wfviz.tracking.confirmation import box3
@@ -106,26 +108,46 @@ class ClutterMap:
     def at(self, xy: np.ndarray, offset: np.ndarray | tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
         """The counts and the exposures summed over the 3 × 3 cells about each image point
         ``xy`` (N, 2) (0 where the map has not been): :func:`static_rate`'s arguments."""
+        return self.snapshot().at(xy, offset)
+
+    def snapshot(self) -> ClutterView:
+        """The map as it is now (its 3 × 3 sums, shared, not copied: :meth:`update` makes new ones)."""
+        return ClutterView(self._sums, self.origin.copy(), self.cell)
+
+
+@dataclass(frozen=True)
+class ClutterView:
+    """A :class:`ClutterMap` at one frame: the 3 × 3 sums of its counts and exposures (None:
+    empty), the scene cell of their [0, 0] and the cell size (px)."""
+
+    sums: tuple[np.ndarray, np.ndarray] | None
+    origin: np.ndarray
+    cell: int
+
+    def at(self, xy: np.ndarray, offset: np.ndarray | tuple[float, float]) -> tuple[np.ndarray, np.ndarray]:
+        """See :meth:`ClutterMap.at`."""
         xy = np.asarray(xy, dtype=np.float64).reshape(-1, 2)
         k, e = np.zeros(len(xy)), np.zeros(len(xy))
-        if self._sums is None or not len(xy):
+        if self.sums is None or not len(xy):
             return k, e
-        cell = self._cells(xy, np.asarray(offset, dtype=np.float64)) - self.origin
-        ok = ((cell >= 0) & (cell < np.array(self._sums[0].shape[::-1]))).all(axis=1)
-        k[ok] = self._sums[0][cell[ok, 1], cell[ok, 0]]
-        e[ok] = self._sums[1][cell[ok, 1], cell[ok, 0]]
+        off = np.asarray(offset, dtype=np.float64)
+        cell = np.floor((xy - off) / self.cell).astype(np.int64) - self.origin
+        ok = ((cell >= 0) & (cell < np.array(self.sums[0].shape[::-1]))).all(axis=1)
+        k[ok] = self.sums[0][cell[ok, 1], cell[ok, 0]]
+        e[ok] = self.sums[1][cell[ok, 1], cell[ok, 0]]
         return k, e
 
-    def view(self, shape: tuple[int, int], offset: np.ndarray | tuple[float, float]) -> np.ndarray:
-        """:func:`static_rate` of the cells in view, one value per ``cell`` × ``cell`` block of
-        the image (the image's rows and columns divided by ``cell``, rounded up), for the recording."""
+    def prior(self, shape: tuple[int, int], offset: np.ndarray | tuple[float, float]) -> np.ndarray:
+        """The static-clutter prior ``1 - exp(-r)`` (:func:`static_rate`) of the cells in view, one
+        value per ``cell`` × ``cell`` block of an image of ``shape`` (its rows and columns divided
+        by ``cell``, rounded up), for the recording."""
         h, w = shape[:2]
         c = self.cell
         ys = (np.arange(-(-h // c)) + 0.5) * c
         xs = (np.arange(-(-w // c)) + 0.5) * c
         gx, gy = np.meshgrid(xs, ys)
         k, e = self.at(np.column_stack([gx.ravel(), gy.ravel()]), offset)
-        return static_rate(k, e).reshape(gy.shape)
+        return -np.expm1(-static_rate(k, e)).reshape(gy.shape)
 
 
 def static_rate(count: np.ndarray, exposure: np.ndarray) -> np.ndarray:

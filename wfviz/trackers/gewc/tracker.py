@@ -18,7 +18,7 @@ from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
-from wfviz.tracking.clutter_map import ClutterMap
+from wfviz.tracking.clutter_map import ClutterMap, ClutterView
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
 PERSIST_RADIUS = 1.5  # px: a detection this close to one of the previous frame (in the scene) persists
@@ -43,10 +43,9 @@ class GEWCResult(FrontEndTrackResult):
 
     measurements: tuple[Measurement, ...]
     clutter: np.ndarray | None = None  # per detection: 1 static clutter, 0 not, NaN undecided
-    #: the clutter map's static-clutter prior per ``tracking.clutter_cell`` block of the image
-    #: (:meth:`wfviz.tracking.clutter_map.ClutterMap.view`; None: no map)
-    clutter_map: np.ndarray | None = None
-    clutter_cell: int = 16  #: px, the side of the clutter map's cells
+    #: the clutter map at this frame (:meth:`wfviz.tracking.clutter_map.ClutterView.prior` gives
+    #: its static-clutter prior per cell of the image; None: no map)
+    clutter_map: ClutterView | None = None
 
 
 class GEWCTracker:
@@ -130,8 +129,7 @@ class GEWCTracker:
             verdicts=self.manager.verdicts, detection_tracks=self.manager.detection_tracks,
             innovations=self.manager.innovations(), thresholds=self.manager.thresholds,
             measurements=tuple(meas.values()), clutter=labels,
-            clutter_map=None if self.clutter_map is None else -np.expm1(-self.clutter_map.view(shape, fe.offset)),
-            clutter_cell=c.tracking.clutter_cell)
+            clutter_map=None if self.clutter_map is None else self.clutter_map.snapshot())
 
     def _persistent(self, xy: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Detections ``xy`` with one of the previous frame within ``PERSIST_RADIUS`` px of the
