@@ -196,3 +196,11 @@ def test_the_change_stage_forgets_the_past_when_the_motion_is_lost() -> None:
     assert tb.update(img, (2.0, 0.0), moving=True) is None      # a new history, as on the first frame
     assert CameraState((0.0, 0.0), (0.0, 0.0), True, 0, False).lost
     assert not CameraState((0.0, 0.0), (0.0, 0.0), False, 0, False).lost   # still camera: nothing to lose
+
+
+def test_the_shift_s_standard_error() -> None:
+    flow = CameraState((0.0, 0.0), (1.0, 0.0), True, 16, True, 0.5, 0.4, "flow")
+    assert flow.error == pytest.approx(0.1)          # the corners' spread over √16
+    phase = CameraState((0.0, 0.0), (1.0, 0.0), True, 3, True, 0.2, 0.3, "phase")
+    assert phase.error == pytest.approx(0.3)         # the halves' disagreement
+    assert np.isnan(CameraState((0.0, 0.0), (0.0, 0.0), True, 0, False).error)

@@ -76,6 +76,17 @@ class CameraState:
     method: str = "flow"
 
     @property
+    def error(self) -> float:
+        """Standard error of this frame's shift (px): the agreeing corners' spread over the root of
+        their number (the flow), the frame's halves' disagreement (phase correlation), 0 on the
+        first frame, NaN when not measured."""
+        if not self.reliable:
+            return float("nan")
+        if self.method == "phase":
+            return float(self.residual)
+        return float(self.residual) / float(np.sqrt(max(self.corners, 1)))
+
+    @property
     def lost(self) -> bool:
         """The camera has moved and this frame's motion is unknown: what is seen now cannot be
         placed in the scene (compared with the past, or learnt as the scene)."""

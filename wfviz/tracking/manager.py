@@ -75,6 +75,7 @@ class TrackManager:
         self._preds: list[Prediction] | None = None
         self._gates = Gates.empty()
         self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
+        self.registration_error = 0.0  # px, standard error of this frame's camera shift (set by the tracker)
         self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
         self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
         self.thresholds: confirmation.Thresholds | None = None  # this frame's (confirm = "sprt")
@@ -409,7 +410,7 @@ class TrackManager:
             t.misses[t.meeting & (nearest >= 0)] = 0
         t.misses[missed] += 1
         moved = np.hypot(reported[:, 0] - t.origin[:, 0], reported[:, 1] - t.origin[:, 1])
-        t.push_motion(rows, self._frame, z - self.offset)
+        t.push_motion(rows, self._frame, z - self.offset, self.registration_error)
         g = self._gates
         half = g.half if len(g.half) == n else np.full((n, 2), self.kcfg.gate_max)
         ids, was_confirmed = t.ids, t.confirmed.copy()
@@ -491,6 +492,7 @@ class TrackManager:
         new.motion_t[:, -1] = self._frame
         new.motion_xy[:, -1] = xy - self.offset
         new.motion_ok[:, -1] = True
+        new.motion_reg[:, -1] = self.registration_error
         self.rule.start(births, self._birth_half)
         self.tracks.append(new)
         if births.clutter is not None:

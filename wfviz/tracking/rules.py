@@ -330,9 +330,13 @@ class SequentialRule(Rule):
                                          tc.position_noise, STEADY_PARTS)
                 # min_motion shared by the parts' differences (min_motion / 2 over 3 parts)
                 steady_level[r] = np.where(steady_level[r] > 0, tc.min_motion / (mo.parts - 1), 0.0)
+                # the camera's registration errors move a fixed point's scene positions alike
+                # over frames (no 1/√k): progress must also exceed them
+                reg = np.sqrt(2.0) * STEADY_Z * np.where(tracks.motion_ok[r], tracks.motion_reg[r], 0.0).max(axis=1)
                 if STEADY_Z > 0:  # significant progress between all parts suffices below that
                     steady_level[r] = np.where(steady_level[r] > 0,
                                                np.minimum(steady_level[r], STEADY_Z * mo.steady_error), 0.0)
+                steady_level[r] = np.where(steady_level[r] > 0, np.maximum(steady_level[r], reg), 0.0)
                 confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
                 t2[r], steady[r] = mo.t2, mo.steady
             stats += [Statistic("motion: T²", t2, motion_level, ">=", t2 >= motion_level),

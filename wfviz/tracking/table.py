@@ -75,6 +75,7 @@ class TrackTable(Columns):
     motion_t: np.ndarray        #: (N, MOTION_HISTORY) frames of the measured scene positions
     motion_xy: np.ndarray       #: (N, MOTION_HISTORY, 2) measured positions (scene), oldest first
     motion_ok: np.ndarray       #: (N, MOTION_HISTORY) bool: that slot holds a position
+    motion_reg: np.ndarray      #: (N, MOTION_HISTORY) the camera registration's standard error then (px)
 
     @classmethod
     def blank(cls, n: int) -> TrackTable:
@@ -90,7 +91,8 @@ class TrackTable(Columns):
             velocities=np.zeros((n, 3, 2)), velocities_len=np.zeros(n, dtype=np.int64),
             innovation=np.full((n, 2), np.nan), clutter=np.zeros(n),
             clutter_known=np.zeros(n, dtype=np.int64), motion_t=np.zeros((n, MOTION_HISTORY)),
-            motion_xy=np.zeros((n, MOTION_HISTORY, 2)), motion_ok=np.zeros((n, MOTION_HISTORY), dtype=bool))
+            motion_xy=np.zeros((n, MOTION_HISTORY, 2)), motion_ok=np.zeros((n, MOTION_HISTORY), dtype=bool),
+            motion_reg=np.zeros((n, MOTION_HISTORY)))
 
     @property
     def confirmed_ids(self) -> list[int]:
@@ -109,12 +111,14 @@ class TrackTable(Columns):
         self.history[rows, -1] = xy
         self.history_len[rows] = np.minimum(self.history_len[rows] + 1, HISTORY)
 
-    def push_motion(self, rows: np.ndarray, frame: int, scene_xy: np.ndarray) -> None:
-        """Append measured scene positions ``scene_xy`` of ``rows`` in ``frame``."""
+    def push_motion(self, rows: np.ndarray, frame: int, scene_xy: np.ndarray, registration: float = 0.0) -> None:
+        """Append measured scene positions ``scene_xy`` of ``rows`` in ``frame``, the camera's
+        registration then known to ``registration`` px (standard error)."""
         if not rows.size:
             return
-        for a in (self.motion_t, self.motion_xy, self.motion_ok):
+        for a in (self.motion_t, self.motion_xy, self.motion_ok, self.motion_reg):
             a[rows, :-1] = a[rows, 1:]
         self.motion_t[rows, -1] = frame
         self.motion_xy[rows, -1] = scene_xy
         self.motion_ok[rows, -1] = True
+        self.motion_reg[rows, -1] = registration

@@ -167,6 +167,7 @@ class GEWCTracker:
         advanced to frame ``index``: the predictions are in this frame's image."""
         if camera is not None:
             self.manager.shift(*camera.shift)
+            self.manager.registration_error = camera.error if np.isfinite(camera.error) else 0.0
             if camera.moving and not camera.reliable:
                 self.manager.motion_unknown()
         return self.manager.predict(index)
