@@ -17,8 +17,8 @@ frames the cell was searched ``E``. The rate of such detections per frame about 
 of a Gamma prior of mean 1 a frame per cell (a cell never watched is taken for clutter) and
 weight ``e0`` frames; cells never searched (below the horizon) weigh nothing.
 
-The tracker counts a detection as *persistent* when one of the previous frame lay within
-1.5 px of the same scene point (noise rarely strikes one place twice), and as *unexplained*
+A detection is *persistent* (:meth:`ClutterMap.persistent`) when one of the previous frame lay
+within 1.5 px of the same scene point (noise rarely strikes one place twice), and as *unexplained*
 when it lies in no confirmed track's gate; those in a tentative track's gate are counted for it
 too, and the rule takes them out again for that track
 (:attr:`~wfviz.tracking.rules.SequentialStats.own_static`), so a hovering target and its other
@@ -30,9 +30,11 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
+from scipy.spatial import cKDTree
 
 from wfviz.tracking.confirmation import box3
 
+PERSIST_RADIUS = 1.5  # px: a detection this close to one of the previous frame (in the scene) persists
 PRIOR_FRAMES = 0.05  # e0: weight of the prior rate (1 a frame), in frames of observation
 
 
@@ -45,6 +47,7 @@ class ClutterMap:
         self.exposure: np.ndarray | None = None  # E per cell
         self.origin = np.zeros(2, dtype=np.int64)  # scene cell (col, row) of counts[0, 0]
         self._sums: tuple[np.ndarray, np.ndarray] | None = None  # 3 x 3 sums of counts, exposures
+        self._last_scene: np.ndarray | None = None  # the previous frame's detections, in the scene
 
     # -- grid ---------------------------------------------------------------------------
     def _cover(self, lo: np.ndarray, hi: np.ndarray) -> None:
@@ -73,6 +76,23 @@ class ClutterMap:
     def _cells(self, xy: np.ndarray, offset: np.ndarray) -> np.ndarray:
         """Scene cell (col, row) of image points ``xy`` (N, 2) under camera ``offset``."""
         return np.floor((np.asarray(xy, dtype=np.float64).reshape(-1, 2) - offset) / self.cell).astype(np.int64)
+
+    # -- persistence ----------------------------------------------------------------------
+    def persistent(self, xy: np.ndarray, offset: np.ndarray | tuple[float, float]) -> np.ndarray:
+        """Detections ``xy`` (N, 2) with one of the previous frame within ``PERSIST_RADIUS`` px of
+        the same scene point (camera ``offset`` removed): noise rarely strikes one place twice, a
+        fixed object of the scene does; then remembers this frame's."""
+        scene = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - np.asarray(offset, dtype=np.float64)
+        last, self._last_scene = self._last_scene, scene
+        if not len(scene) or last is None or not len(last):
+            return np.zeros(len(scene), dtype=bool)
+        d, _ = cKDTree(last).query(scene, distance_upper_bound=PERSIST_RADIUS)
+        return np.isfinite(d)
+
+    def forget_last(self) -> None:
+        """The camera's motion is lost this frame: the next frame's detections cannot be compared
+        with any earlier ones."""
+        self._last_scene = None
 
     # -- update and query -----------------------------------------------------------------
     def update(self, xy: np.ndarray, searched: np.ndarray, offset: np.ndarray | tuple[float, float]) -> None:

@@ -75,7 +75,7 @@ class TrackManager:
         self._preds: list[Prediction] | None = None
         self._gates = Gates.empty()
         self.offset = np.zeros(2)  # accumulated camera shift: scene point s is at s + offset
-        self.registration_error = 0.0  # px, standard error of this frame's camera shift (set by the tracker)
+        self.registration_error = 0.0  # px, standard error of this frame's camera shift (follow_camera)
         self.frame_shape: tuple[int, int] | None = None  # tracks that leave it are deleted
         self.tested_per_frame: float | None = None  # tentative tracks, running mean (TEST_MEMORY)
         self.thresholds: confirmation.Thresholds | None = None  # this frame's (confirm = "sprt")
@@ -126,6 +126,16 @@ class TrackManager:
         d = np.array([dx, dy])
         self.tracks.shift(d)
         self.offset += d
+
+    def follow_camera(self, shift: tuple[float, float], error: float, lost: bool) -> None:
+        """This frame's camera motion (:class:`~wfviz.stages.registration.CameraState`): the
+        tracks move by its ``shift``; the scene positions measured now carry its standard
+        ``error`` (px; NaN: not measured, taken as 0) into the motion test; ``lost`` (the camera
+        has moved and this frame's motion is unknown): :meth:`motion_unknown`."""
+        self.shift(*shift)
+        self.registration_error = float(error) if np.isfinite(error) else 0.0
+        if lost:
+            self.motion_unknown()
 
     def motion_unknown(self) -> None:
         """The camera moves and its shift in this frame is unknown: the scene positions measured

@@ -27,7 +27,7 @@ from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
 STEADY_PARTS = 4  # confirmation.motion: parts of the history between which steady progress is asked for (chosen on real half A)
 MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per part (at least 3 parts)
-STEADY_Z = 4.0  # steady progress: standard errors of the thirds' medians that count as progress (chosen on real half A)
+STEADY_Z = 4.0  # steady progress: standard errors of the parts' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
 

@@ -243,9 +243,7 @@ class FusionTracker:
         prepared = self.front.prepare(frame.image, lap, whole=bool(reason), update_horizon=bool(reason))
         if prepared.camera is not None:  # the tracks and their predictions move with the camera
             camera = prepared.camera
-            mgr.shift(*camera.shift)
-            if camera.moving and not camera.reliable:
-                mgr.motion_unknown()
+            mgr.follow_camera(camera.shift, camera.error, camera.lost)
             if camera.shift != (0.0, 0.0):
                 preds = [replace(p, x=p.x + camera.shift[0], y=p.y + camera.shift[1]) for p in preds]
                 pred_xy = pred_xy + np.asarray(camera.shift)

@@ -5,7 +5,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from wfviz.io.frames import Frame
 from wfviz.stages.centroid import measure_many
@@ -20,8 +19,6 @@ from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
 from wfviz.tracking.clutter_map import ClutterMap, ClutterView
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
-
-PERSIST_RADIUS = 1.5  # px: a detection this close to one of the previous frame (in the scene) persists
 
 
 @dataclass(frozen=True)
@@ -70,7 +67,6 @@ class GEWCTracker:
         t = c.tracking
         self.clutter_map = (ClutterMap(t.clutter_cell, t.clutter_memory)
                             if t.clutter_map and t.confirm == "sprt" else None)
-        self._last_scene: np.ndarray | None = None  # the previous frame's detections, in the scene
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -109,13 +105,13 @@ class GEWCTracker:
         pred_xy = np.array([[p.x, p.y] for p in preds], dtype=np.float64).reshape(-1, 2)
         track_clutter = None
         if self.clutter_map is not None:
-            lost = fe.camera is not None and fe.camera.lost
-            if lost:  # the scene position of what is seen now is unknown: nothing is learnt
-                self._last_scene = None
+            mine = np.zeros(len(preds))
+            if fe.camera is not None and fe.camera.lost:  # where what is seen now lies in the scene is unknown
+                self.clutter_map.forget_last()
             else:
                 counted, mine = self._unexplained(dets, preds, assoc.pairs, fe.offset)
                 self.clutter_map.update(dets.xy[counted], fe.region, fe.offset)
-            track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine if not lost else np.zeros(len(preds)))
+            track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy), dets.linearity, dets.max_linearity),
@@ -131,24 +127,14 @@ class GEWCTracker:
             measurements=tuple(meas.values()), clutter=labels,
             clutter_map=None if self.clutter_map is None else self.clutter_map.snapshot())
 
-    def _persistent(self, xy: np.ndarray, offset: np.ndarray) -> np.ndarray:
-        """Detections ``xy`` with one of the previous frame within ``PERSIST_RADIUS`` px of the
-        same scene point (camera ``offset`` removed): noise rarely strikes one place twice, a
-        fixed object of the scene does; then remembers this frame's."""
-        scene = np.asarray(xy, dtype=np.float64).reshape(-1, 2) - offset
-        last, self._last_scene = self._last_scene, scene
-        if not len(scene) or last is None or not len(last):
-            return np.zeros(len(scene), dtype=bool)
-        d, _ = cKDTree(last).query(scene, distance_upper_bound=PERSIST_RADIUS)
-        return np.isfinite(d)
-
     def _unexplained(self, dets: Detections, preds: list[Prediction], pairs: dict[int, int],
                      offset: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
-        """The detections the clutter map counts: persistent (:meth:`_persistent`) and explained by
+        """The detections the clutter map counts: persistent (:meth:`ClutterMap.persistent`) and explained by
         no confirmed track (neither taken by one nor in its gate); and how many of them lie in
         each track's gate (a tentative track's own hits and its target's other parts, which must
         not teach the map that its place is clutter)."""
-        keep = self._persistent(dets.xy, offset)
+        assert self.clutter_map is not None
+        keep = self.clutter_map.persistent(dets.xy, offset)
         confirmed = self.manager.tracks.confirmed
         keep[[j for i, j in pairs.items() if confirmed[i]]] = False
         mine = np.zeros(len(preds))
@@ -166,10 +152,7 @@ class GEWCTracker:
         compensated; unknown on a moving camera: no motion test across this frame), then
         advanced to frame ``index``: the predictions are in this frame's image."""
         if camera is not None:
-            self.manager.shift(*camera.shift)
-            self.manager.registration_error = camera.error if np.isfinite(camera.error) else 0.0
-            if camera.moving and not camera.reliable:
-                self.manager.motion_unknown()
+            self.manager.follow_camera(camera.shift, camera.error, camera.lost)
         return self.manager.predict(index)
 
     def _gate_thresholds(self, preds: list) -> np.ndarray | None:
