@@ -108,6 +108,8 @@ def test_a_target_that_jumps_away_from_its_confirmed_track_is_lost(tmp_path: Pat
     after = [r for r in rs if int(r["frame"]) >= 20 and r["cause"] != "matched"]
     assert after and all(r["cause"] == "lost" for r in after), causes(after)
     assert int(after[0]["track_id"]) > 0 and "off it" in after[0]["detail"]
+    # why it did not follow: predicted far from the target, its detection outside the gate
+    assert "predicted" in after[0]["detail"] and "outside that gate" in after[0]["detail"], after[0]["detail"]
     assert any("ended at frame" in r["detail"] for r in after)
 
 

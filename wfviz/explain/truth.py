@@ -149,7 +149,7 @@ class TruthCauses:
             return say(Cause.OUTSIDE_REGION, self._region_detail(result, front, x, y))
         if not near.any():
             return say(Cause.NOT_DETECTED, self._undetected(result, front, dets, sig, r, c, x, y))
-        lost = self._lost(result, tid, x, y)
+        lost = self._lost(result, tid, x, y, dets, near)
         if lost is not None:
             return say(Cause.LOST, *lost)
         live = result.tracks
@@ -229,9 +229,11 @@ class TruthCauses:
             return f"its component of {area} px is outside detection.min_area..max_area ({self.min_area}..{self.max_area})"
         return f"dropped: more than detection.max_detections ({self.max_detections}) components were brighter"
 
-    def _lost(self, result: FrameResult, tid: int, x: float, y: float) -> tuple[str, int] | None:
+    def _lost(self, result: FrameResult, tid: int, x: float, y: float, dets: Detections,
+              near: np.ndarray) -> tuple[str, int] | None:
         """(detail, track) when the confirmed track that last matched target ``tid`` is off it or
-        deleted (None: it never had one)."""
+        deleted (None: it never had one); ``near``: the detections within the gate of the point.
+        A live track off it says why it did not take the point's detection (:meth:`_off_why`)."""
         owner = self._owner.get(tid)
         if owner is None:
             return None
@@ -242,11 +244,45 @@ class TruthCauses:
             dist = math.hypot(t.x - x, t.y - y)
             if self.near((tid, x, y), np.array([[t.x, t.y]]))[0]:
                 return None  # on it, but the scorer gave it another target (not_associated)
-            return f"its track {track} (matched until frame {since}) is {dist:.1f} px off it", track
+            why = self._off_why(result, track, dets, near, x, y)
+            return f"its track {track} (matched until frame {since}) is {dist:.1f} px off it{why}", track
         if t is None and track in self._deleted:
             when, message = self._deleted[track]
             return f"its track {track} (matched until frame {since}) ended at frame {when}: {message}", track
         return f"its track {track} (matched until frame {since}) is gone", track
+
+    @staticmethod
+    def _off_why(result: FrameResult, track: int, dets: Detections, near: np.ndarray, x: float, y: float) -> str:
+        """Why confirmed ``track`` did not take the detection nearest the point (x, y) among
+        ``near``: where it was predicted against its gate, the camera's shift it was moved by,
+        and what it took instead ("" when the tracker reports no prediction for it)."""
+        pred = next((p for p in result.predictions if p.track_id == track), None)
+        if pred is None:
+            return ""
+        parts = [f"predicted {math.hypot(pred.x - x, pred.y - y):.1f} px from it "
+                 f"(gate ±{pred.half_w:.1f} × {pred.half_h:.1f} px)"]
+        cam = result.front.camera if result.front is not None else None
+        if cam is not None and cam.moving:
+            how = (f"{cam.method}, {cam.corners} corners" if cam.reliable else "unknown: not moved")
+            parts.append(f"camera shift ({cam.shift[0]:+.1f}, {cam.shift[1]:+.1f}) px ({how})")
+        idx = np.flatnonzero(near)
+        j = int(idx[np.argmin(np.hypot(dets.xy[idx, 0] - x, dets.xy[idx, 1] - y))])
+        dx, dy = dets.xy[j]
+        d = math.hypot(dx - x, dy - y)
+        owners = result.detection_tracks
+        taker = int(owners[j]) if owners is not None and len(owners) == len(dets) else None
+        if abs(dx - pred.x) > pred.half_w or abs(dy - pred.y) > pred.half_h:
+            parts.append(f"the detection {d:.1f} px from it lay outside that gate")
+        elif taker is not None and taker >= 0 and taker != track:
+            parts.append(f"the detection {d:.1f} px from it went to track {taker}")
+        if owners is not None and len(owners) == len(dets):
+            took = np.flatnonzero(owners == track)
+            if len(took):
+                k = int(took[0])
+                parts.append(f"it took a detection {math.hypot(dets.xy[k, 0] - x, dets.xy[k, 1] - y):.1f} px from it")
+            else:
+                parts.append("it took no detection")
+        return ": " + "; ".join(parts)
 
     def _unassociated(self, result: FrameResult, dets: Detections, j: int, x: float, y: float) -> tuple[str, int | None]:
         """Why detection ``j`` (within the gate of (x, y)) is on no track near the point."""

@@ -31,7 +31,11 @@ a still camera wanders by a few hundredths of a pixel); stages that treat the tw
 differently read ``moving``. When neither the flow nor the fallback measures the shift it is
 *unknown* and the last offset is kept (``reliable`` False, ``method`` "none": the tracker then
 moves nothing, does not count scene positions across the frame as motion once the camera
-moves, and the recording shows the shift as unknown, never as still). ``confidence`` and
+moves, and the recording shows the shift as unknown, never as still). The key frame is kept
+through up to ``KEEP_KEY`` such frames, so the next frame measured from it carries their motion
+too (a blurred frame in a fast re-pointing loses nothing; on a real sky clip the tracks
+otherwise stayed behind by the 17 px of the one frame not measured); after more, the motion
+since the key frame is given up and a new key frame is taken. ``confidence`` and
 ``residual`` say how well it was measured (the flow: the share of the key frame's corners
 that agreed and their flows' spread; the fallback: the peak's response and the halves'
 disagreement).
@@ -51,6 +55,7 @@ FLATTEN = 9       # px (at the flow's scale), side of the opening and closing be
 RESPONSE_LEVEL = 42.0  # the fallback's peak must reach this / sqrt(pixels correlated)
 AGREE_PX, AGREE_SHARE = 1.0, 0.25  # the halves agree within max(AGREE_PX, AGREE_SHARE · |shift|)
 REFINE_CORNERS = 3  # corners that refine the fallback's shift
+KEEP_KEY = 3  # frames of unknown motion after which the key frame is given up
 
 
 @dataclass(frozen=True)
@@ -109,6 +114,7 @@ class CameraMotion:
         self._range: tuple[float, float] | None = None
         self.offset = np.zeros(2)
         self.moving = False
+        self._unknown = 0  # consecutive frames of unknown motion
 
     def _grey(self, image: np.ndarray) -> np.ndarray:
         """8-bit, downsampled copy for the flow (grey range fixed by the first frame)."""
@@ -147,6 +153,15 @@ class CameraMotion:
             self._set_key(self._grey(image), image)
             return self._state(before, 0, True, 1.0, 0.0)
         g = self._grey(image)
+        state = self._measure(g, image, before)
+        self._unknown = 0 if state.reliable else self._unknown + 1
+        if self.moving and self._unknown > KEEP_KEY:  # the key frame is out of reach: start again here
+            self._set_key(g, image)
+            self._unknown = 0
+        return state
+
+    def _measure(self, g: np.ndarray, image: np.ndarray, before: np.ndarray) -> CameraState:
+        """This frame's state from the key frame (module docstring)."""
         agreed = 0
         if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
             win = (FLOW_WINDOW, FLOW_WINDOW)
@@ -179,8 +194,6 @@ class CameraMotion:
             if self.moving:
                 self._set_key(g, image)
             return self._state(before, max(agreed, refined), True, response, residual, "phase")
-        if self.moving:  # lost the key frame's corners: start a new key frame here
-            self._set_key(g, image)
         return self._state(before, agreed, False, 0.0, float("nan"), "none")
 
     def _fallback(self, g: np.ndarray, now: np.ndarray) -> tuple[np.ndarray, float, float, int] | None:
