@@ -200,6 +200,14 @@ def static_prior(count: np.ndarray, exposure: np.ndarray, own: np.ndarray) -> np
     return -np.expm1(-static_rate(np.maximum(count - own, 0.0), exposure))
 
 
+def least_static_prior(tc: TrackingConfig) -> float:
+    """The least :func:`static_prior` the clutter map can give anywhere: no persistent detection
+    about a place searched in every frame of its memory (``clutter_memory``; each of the 3 × 3
+    cells' exposure then tends to it)."""
+    exposure = 9.0 * tc.clutter_memory
+    return float(static_prior(np.zeros(1), np.full(1, exposure), np.zeros(1))[0])
+
+
 def static_levels(th: confirmation.Thresholds, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Levels of the two tests against static clutter at a place whose static-clutter prior is
     ``prior`` (:func:`static_prior`): the false-confirmation rate α is what the tests must keep
@@ -251,15 +259,21 @@ class SequentialRule(Rule):
 
     def min_hits(self, levels: confirmation.Thresholds | None) -> int:
         """The "not clutter" test gains at most ln(target_change_rate / static_change_rate) per
-        hit (a changed hit), so it needs ``confirm`` / that many hits; the motion test's steady
+        hit (a changed hit), so it needs its level / that many hits; the motion test's steady
         progress is 0 with fewer than 6 positions (:func:`wfviz.tracking.confirmation.motion`);
-        the persistence test can be passed by the birth hit alone."""
+        the persistence test can be passed by the birth hit alone, but a track is decided on
+        from the frame after its birth, where it needs a hit: 2 at least. With the clutter map both
+        levels are lowest where its static prior is (:func:`least_static_prior`): the motion
+        test is asked for everywhere while that prior exceeds α."""
         tc = self.tcfg
         per_hit = math.log(tc.target_change_rate / tc.static_change_rate)
-        need = 1
+        need = 2
+        prior = least_static_prior(tc) if tc.clutter_map else 1.0
         if levels is not None and per_hit > 0:
-            need = max(need, math.ceil(levels.confirm / per_hit - 1e-9))
-        if tc.require_motion and tc.min_motion > 0 and not tc.clutter_map:
+            level = max(levels.confirm + math.log(prior), 0.0)
+            need = max(need, math.ceil(level / per_hit - 1e-9))
+        motion_asked = not tc.clutter_map or levels is None or prior > levels.alpha
+        if tc.require_motion and tc.min_motion > 0 and motion_asked:
             need = max(need, MOTION_MIN_POSITIONS)
         return need
 
