@@ -6,8 +6,14 @@ causes, and a check of the explanation against the outputs on every clip:
 - ``not_detected`` has no detection within the gate (its ``det_dist`` is beyond it or empty);
 - ``latency`` / ``not_confirmed`` have a tentative track row within the gate, the one named.
 
-    python benchmarks/explain_causes.py                    # markdown table on stdout
-    python benchmarks/explain_causes.py --groups real --jobs 2
+A second table says which confirmation test held the tentative tracks of the ``latency`` and
+``not_confirmed`` points back (the explain file's ``test`` column), per clip and test: points,
+and how far the statistic stayed from its level (median ``level - statistic``, and the median
+statistic / level).
+
+    python benchmarks/explain_causes.py                    # markdown tables on stdout
+    python benchmarks/explain_causes.py --groups real --half A --jobs 2
+    python benchmarks/explain_causes.py --only IR_BIRD_063 sequence1
 """
 
 from __future__ import annotations
@@ -64,6 +70,8 @@ def one(job: tuple[str, str, str, float]) -> dict:
             tracks.setdefault(int(r["frame"]), []).append(r)
     problems = []
     n = Counter(r["cause"] for r in ex)
+    held = [(r["cause"], r["test"], _float(r["statistic"]), _float(r["level"])) for r in ex
+            if r["cause"] in ("latency", "not_confirmed")]
     scores = summary.scores
     if scores is not None and n["matched"] != scores.matches:
         problems.append(f"matched {n['matched']} != scorer's {scores.matches}")
@@ -81,8 +89,43 @@ def one(job: tuple[str, str, str, float]) -> dict:
     misses = {k: n[k] for k in MISS_ORDER if n[k]}
     return {"clip": label, "visible": visible, "matched": n["matched"], "causes": dict(n),
             "dominant": max(misses, key=lambda k: misses[k]) if misses else "-",
-            "false": dict(Counter(r["cause"] for r in false)), "problems": problems,
+            "false": dict(Counter(r["cause"] for r in false)), "problems": problems, "held": held,
             "pd": scores.pd if scores is not None else math.nan}
+
+
+def _float(v: str) -> float:
+    return float(v) if v else math.nan
+
+
+def held_table(results: list[dict]) -> list[str]:
+    """Markdown rows: per clip and blocking test, the latency and not_confirmed points it held
+    back, the median shortfall (level - statistic, in the test's units) and statistic / level;
+    then the same over all clips."""
+    import numpy as np
+
+    def row(name: str, items: list[tuple[str, str, float, float]]) -> list[str]:
+        out = []
+        by: dict[str, list] = {}
+        for it in items:
+            by.setdefault(it[1] or "(none named)", []).append(it)
+        for test, its in sorted(by.items(), key=lambda kv: -len(kv[1])):
+            lat = sum(c == "latency" for c, *_ in its)
+            val = np.array([v for _, _, v, _ in its])
+            lev = np.array([lv for _, _, _, lv in its])
+            ok = np.isfinite(val) & np.isfinite(lev)
+            gap = f"{np.median(lev[ok] - val[ok]):.3g}" if ok.any() else "–"
+            frac = ok & (lev != 0)
+            ratio = f"{np.median(val[frac] / lev[frac]):.2f}" if frac.any() else "–"
+            out.append(f"| {name} | {test} | {lat} | {len(its) - lat} | {gap} | {ratio} |")
+        return out
+
+    lines = ["| clip | held back by | latency | not confirmed | median level - statistic | median statistic / level |",
+             "|---|---|---|---|---|---|"]
+    every: list = []
+    for r in results:
+        lines += row(r["clip"], r["held"])
+        every += r["held"]
+    return lines + row("**all**", every)
 
 
 def main() -> None:
@@ -91,8 +134,20 @@ def main() -> None:
     ap.add_argument("--groups", nargs="+", default=["independent", "real"], choices=["independent", "real"])
     ap.add_argument("--gate", type=float, default=3.0)
     ap.add_argument("--jobs", type=int, default=1)
+    ap.add_argument("--half", choices=["A", "B"], default=None, help="real sequences of one half only")
+    ap.add_argument("--only", nargs="+", default=None, help="clips whose name contains one of these")
     a = ap.parse_args()
-    jobs = [(a.tracker, c, t, a.gate) for c, t in clips(a.groups)]
+    picked = clips(a.groups)
+    if a.half:
+        sys.path.insert(0, str(Path(__file__).resolve().parent))
+        from validation import real_half
+
+        halves = real_half(SHARED / "real")
+        picked = [(c, t) for c, t in picked if "/real/" not in c
+                  or halves.get(str(Path(c).relative_to(SHARED / "real"))) == a.half]
+    if a.only:
+        picked = [(c, t) for c, t in picked if any(o in c for o in a.only)]
+    jobs = [(a.tracker, c, t, a.gate) for c, t in picked]
     with ProcessPoolExecutor(a.jobs) as pool:
         results = list(pool.map(one, jobs))
     head = ["clip", "visible", "Pd", *(c.replace("_", " ") for c in MISS_ORDER), "dominant", "false-track rows"]
@@ -112,6 +167,8 @@ def main() -> None:
     print(f"\nall clips: {v} visible truth points, " + ", ".join(
         f"{c} {100 * total[c] / max(v, 1):.1f} %" for c in ("matched", *MISS_ORDER)))
     print(f"consistency problems: {bad}")
+    print()
+    print("\n".join(held_table(results)))
 
 
 if __name__ == "__main__":

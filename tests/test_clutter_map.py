@@ -13,7 +13,7 @@ from wfviz.config import load_config
 from wfviz.io.frames import Frame
 from wfviz.trackers import config_class, make_tracker
 from wfviz.tracking.clutter_map import ClutterMap, static_rate
-from wfviz.tracking.rules import static_levels, static_prior
+from wfviz.tracking.rules import MOTION_MIN_POSITIONS, SequentialRule, least_static_prior, static_levels, static_prior
 from wfviz.tracking.confirmation import thresholds
 
 TARGET = (64.3, 60.7)
@@ -110,3 +110,26 @@ def test_the_map_and_each_tracks_prior_are_recorded(tmp_path):
     paths = {str(ch.entity_path) for ch in RrdReader(out).stream()}
     assert "/clutter/map" in paths
     assert any(p.endswith("/clutter_map_static_prior") for p in paths)
+
+
+def test_min_hits_asks_for_the_motion_test_while_the_least_prior_exceeds_alpha():
+    """``min_hits`` (the explanation's ``latency``) is a true lower bound: the motion test needs
+    6 positions wherever the clutter map's least possible prior exceeds α."""
+    tc = load_config(None, config_class("gewc")).tracking
+    rule = SequentialRule(tc)
+    assert least_static_prior(tc) == pytest.approx(-np.expm1(-9 * 0.05 / (9 * tc.clutter_memory + 0.05)))
+    many = thresholds(tc.false_tracks_per_1000, 50.0, tc.beta, tc.p_lost)  # α 2e-5: below the least prior
+    few = thresholds(tc.false_tracks_per_1000, 1.0, tc.beta, tc.p_lost)    # α 1e-3: above it
+    assert rule.min_hits(many) == MOTION_MIN_POSITIONS
+    assert rule.min_hits(few) == 2  # the motion test need not be asked for: a hit after the birth
+    assert SequentialRule(dataclasses.replace(tc, clutter_map=False)).min_hits(few) == MOTION_MIN_POSITIONS
+
+
+def test_no_track_is_confirmed_with_fewer_hits_than_min_hits():
+    tracker = make_tracker("gewc", load_config(None, config_class("gewc")))
+    for f in hovering(120):
+        r = tracker.step(f)
+        hits = {s.track_id: s.hits for s in r.tracks}
+        for tid, d in r.verdicts.all().items():
+            if d.verdict == "confirm":
+                assert hits[tid] >= r.verdicts.min_hits, (f.index, tid, hits[tid], r.verdicts.min_hits)

@@ -94,6 +94,13 @@ def test_a_target_on_a_static_flickering_spot_is_held_back_by_the_motion_test(tm
     assert all("motion" in r["detail"] for r in late), {r["detail"] for r in late}
     young = [r for r in rs if r["cause"] == "latency"]
     assert young and all(int(r["frame"]) < 10 for r in young)
+    # the test column names the blocking test, with its statistic short of its level
+    assert all(r["test"].startswith("motion") and float(r["statistic"]) < float(r["level"]) for r in late), late[:3]
+    assert all(r["test"] == "" or r["test"] in r["detail"] for r in young)
+    r = invoke("eval", "--explain", str(tmp_path / "explain.csv"), "--json", str(tmp_path / "w.json"))
+    assert "not_confirmed held back by: motion" in r.output, r.output
+    held = json.loads((tmp_path / "w.json").read_text())["explain"]["held_back"]
+    assert sum(held["not_confirmed"].values()) == len([r for r in rs if r["cause"] == "not_confirmed"])
 
 
 def test_a_target_that_jumps_away_from_its_confirmed_track_is_lost(tmp_path: Path) -> None:

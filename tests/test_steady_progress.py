@@ -60,3 +60,23 @@ def test_constant_velocity_makes_steady_progress_between_all_parts():
     xy = np.column_stack([0.5 * np.arange(k), 0.2 * np.arange(k)]) + rng.normal(0, 0.3, (k, 2))
     m = motion(np.arange(k, dtype=float)[None], xy[None], np.ones((1, k), dtype=bool), 0.3, parts=STEADY_PARTS)
     assert m.steady[0] >= min(1.0, STEADY_Z * m.steady_error[0])
+
+
+def test_three_positions_of_a_fast_straight_mover_make_significant_progress():
+    """From 3 positions on (one a part) a fast target's progress is tested in standard errors of
+    its own path's scatter: it need not wait for 6 positions."""
+    rng = np.random.default_rng(3)
+    xy = np.column_stack([3.0 * np.arange(3), 1.0 * np.arange(3)]) + rng.normal(0, 0.1, (3, 2))
+    m = motion(np.arange(3, dtype=float)[None], xy[None], np.ones((1, 3), dtype=bool), 0.3, 4)
+    assert m.per_part[0] == 1 and m.parts[0] == 3
+    assert m.steady[0] >= STEADY_Z * m.steady_error[0]
+
+
+def test_three_positions_that_zigzag_are_not_steady_progress():
+    """Three hits linked across erratic jumps (noise, or clutter picked up at random) have as
+    much progress, but their path's scatter (each position off the chord of its neighbours)
+    makes it insignificant."""
+    xy = np.array([[0.0, 0.0], [4.1, -6.3], [2.8, -10.0]])
+    m = motion(np.arange(3, dtype=float)[None], xy[None], np.ones((1, 3), dtype=bool), 0.3, 4)
+    assert m.steady[0] > 3.0
+    assert m.steady[0] < STEADY_Z * m.steady_error[0]

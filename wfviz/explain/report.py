@@ -16,7 +16,9 @@ from wfviz.explain.types import MISSES, Cause, FalseCause, FalseExplanation, Tru
 from wfviz.io.outputs import TextOutput
 
 EXPLAIN_HEADER = ("frame", "target_id", "cause", "detail", "significance", "det_dist", "track_id",
-                  "x", "y", "residual", "change", "threshold")
+                  "x", "y", "residual", "change", "threshold", "test", "statistic", "level")
+#: the causes whose rows name the confirmation test that held their tentative track back
+HELD = (Cause.LATENCY, Cause.NOT_CONFIRMED)
 FALSE_HEADER = ("frame", "track_id", "cause", "detail", "x", "y")
 
 #: the stage a point has passed once it is past each miss cause (the funnel's rows)
@@ -57,7 +59,8 @@ class ExplainWriter:
         self.truth.write("".join(
             f"{e.frame},{e.target_id},{e.cause.value},{_text(e.detail)},{_num(e.significance)},{_num(e.det_dist, '.3f')},"
             f"{'' if e.track_id is None else e.track_id},{e.x:.3f},{e.y:.3f},{_num(e.residual)},{_num(e.change)},"
-            f"{_num(e.threshold)}\r\n" for e in truth))
+            f"{_num(e.threshold)},{_text(e.test)},{_num(e.statistic, '.4g')},{_num(e.level, '.4g')}\r\n"
+            for e in truth))
         self.false.write("".join(f"{e.frame},{e.track_id},{e.cause.value},{_text(e.detail)},{e.x:.3f},{e.y:.3f}\r\n"
                                  for e in false))
 
@@ -73,12 +76,15 @@ class ExplainWriter:
 @dataclass(frozen=True)
 class ExplainSummary:
     """Where Pd went: ``causes`` of the visible truth points (counts), the same ``per_target``,
-    the ``hidden`` points, and the ``false_causes`` of the false confirmed track points."""
+    the ``hidden`` points, the ``false_causes`` of the false confirmed track points, and
+    ``held_back``: for ``latency`` and ``not_confirmed``, {cause: {test: points}}, the
+    confirmation test that held each point's tentative track back ("" none named)."""
 
     causes: dict[str, int]
     per_target: dict[int, dict[str, int]]
     hidden: int = 0
     false_causes: dict[str, int] = field(default_factory=dict)
+    held_back: dict[str, dict[str, int]] = field(default_factory=dict)
 
     @property
     def visible(self) -> int:
@@ -112,11 +118,14 @@ class ExplainSummary:
                            for c in (Cause.MATCHED, *MISSES)},
                 "funnel": [{"cause": c, "count": n, "left": left} for c, n, left in self.funnel()],
                 "per_target": {str(t): {"visible": sum(c.values()), **c} for t, c in sorted(self.per_target.items())},
-                "false_tracks": {"rows": sum(self.false_causes.values()), "causes": dict(self.false_causes)}}
+                "false_tracks": {"rows": sum(self.false_causes.values()), "causes": dict(self.false_causes)},
+                "held_back": {c: dict(t) for c, t in self.held_back.items()}}
 
 
-def summarise(truth: Iterable[tuple[int, str]], false: Iterable[str] = ()) -> ExplainSummary:
-    """The summary of (target_id, cause) truth rows and false-track causes."""
+def summarise(truth: Iterable[tuple[int, str]], false: Iterable[str] = (),
+              held: Iterable[tuple[str, str]] = ()) -> ExplainSummary:
+    """The summary of (target_id, cause) truth rows, false-track causes and the (cause, test)
+    of the ``latency`` and ``not_confirmed`` rows."""
     causes: Counter = Counter()
     per: dict[int, Counter] = {}
     hidden = 0
@@ -126,9 +135,13 @@ def summarise(truth: Iterable[tuple[int, str]], false: Iterable[str] = ()) -> Ex
             continue
         causes[cause] += 1
         per.setdefault(tid, Counter())[cause] += 1
+    tests: dict[str, Counter] = {}
+    for cause, test in held:
+        tests.setdefault(str(cause), Counter())[test] += 1
     return ExplainSummary({str(k): v for k, v in causes.items()},
                           {t: {str(k): v for k, v in c.items()} for t, c in per.items()}, hidden,
-                          {str(k): v for k, v in Counter(false).most_common()})
+                          {str(k): v for k, v in Counter(false).most_common()},
+                          {str(c): dict(tests[c.value].most_common()) for c in HELD if c.value in tests})
 
 
 def format_summary(s: ExplainSummary) -> str:
@@ -144,6 +157,8 @@ def format_summary(s: ExplainSummary) -> str:
         lines.append(f"  - {cause:<15} {n:>6}  {pct(n)}   -> {passed:<26} {left:>6}")
     if s.dominant:
         lines.append(f"  dominant miss cause: {s.dominant} ({pct(s.causes[s.dominant]).strip()} of visible)")
+    for cause, tests in s.held_back.items():
+        lines.append(f"  {cause} held back by: " + ", ".join(f"{t or 'no test named'} {n}" for t, n in tests.items()))
     if s.per_target:
         names = [c.value for c in MISSES]
         short = {"outside_circle": "circle", "outside_region": "region", "not_detected": "not_det",
@@ -168,7 +183,9 @@ def read_explain(path: Path) -> ExplainSummary:
     a malformed file: :class:`~wfviz.evaluate.TruthError` naming file and line."""
     name = path.name
     rows: list[tuple[int, str]] = []
+    held: list[tuple[str, str]] = []
     valid = {c.value for c in Cause}
+    named = {c.value for c in HELD}
     try:
         with open(path, newline="", encoding="utf-8-sig") as fh:
             reader = csv.DictReader(fh)
@@ -184,6 +201,8 @@ def read_explain(path: Path) -> ExplainSummary:
                                      f"({', '.join(sorted(valid))})")
                 try:
                     rows.append((int(row["target_id"]), cause))
+                    if cause in named and "test" in header:  # explain files before the column: none
+                        held.append((cause, (row.get("test") or "").strip()))
                 except (TypeError, ValueError):
                     raise TruthError(f"{name}:{reader.line_num}: column 'target_id': "
                                      f"{row.get('target_id')!r} is not an integer") from None
@@ -205,4 +224,4 @@ def read_explain(path: Path) -> ExplainSummary:
         raise TruthError(f"{name}: not UTF-8 text ({e.reason})") from None
     except csv.Error as e:
         raise TruthError(f"{name}: not a valid CSV file ({e})") from None
-    return summarise(rows, false)
+    return summarise(rows, false, held)

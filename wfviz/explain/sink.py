@@ -10,7 +10,7 @@ from typing import Any
 
 from wfviz.evaluate import Points, Truth
 from wfviz.explain.false_tracks import FalseCauses
-from wfviz.explain.report import ExplainSummary, ExplainWriter, summarise
+from wfviz.explain.report import HELD, ExplainSummary, ExplainWriter, summarise
 from wfviz.explain.truth import TruthCauses
 from wfviz.explain.types import FrameExplanation
 from wfviz.sinks import BaseSink, FrameTruth, RunEnd, Step, confirmed_points
@@ -32,6 +32,7 @@ class ExplainSink(BaseSink):
         self.false_causes = FalseCauses(gate)
         self.rows: Counter[tuple[int, str]] = Counter()  # (target, cause): counts, not rows (long clips)
         self.false: Counter[str] = Counter()
+        self.held: Counter[tuple[str, str]] = Counter()  # (latency / not_confirmed, the test that held it back)
         self.writer = ExplainWriter(path) if path is not None else None
 
     def publish(self, step: Step) -> None:
@@ -46,12 +47,13 @@ class ExplainSink(BaseSink):
         false = self.false_causes.explain(result, ft.shown, ft.errors)
         self.rows.update((e.target_id, e.cause.value) for e in truth)
         self.false.update(e.cause.value for e in false)
+        self.held.update((e.cause.value, e.test) for e in truth if e.cause in HELD)
         if self.writer is not None:
             self.writer.write(truth, false)
         step.facts.put(FrameExplanation(f, truth, false), self.run)
 
     def conclude(self, end: RunEnd) -> None:
-        end.facts.put(summarise(self.rows.elements(), self.false.elements()), self.run)
+        end.facts.put(summarise(self.rows.elements(), self.false.elements(), self.held.elements()), self.run)
 
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:

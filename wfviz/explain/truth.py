@@ -25,7 +25,7 @@ from wfviz.stages.detection import Detections
 from wfviz.stages.front_end import FrontEndResult
 from wfviz.stages.horizon import horizon_confident, search_limit
 from wfviz.trackers.base import FrameResult
-from wfviz.tracking import EventKind
+from wfviz.tracking import Check, Decision, EventKind
 
 Point = tuple[int, float, float]
 
@@ -69,6 +69,14 @@ def point_significance(front: FrontEndResult, r: int, c: int, k_sigma: float) ->
         ch = front.change[win]
         change = float(np.nanmax(ch)) if np.isfinite(ch).any() else math.nan
     return PointSignificance(float(z.max()), change, k)
+
+
+def held_by(decision: Decision | None) -> Check | None:
+    """The confirmation test that held a tentative track back in ``decision`` (its
+    :attr:`~wfviz.tracking.decision.Decision.test`; None: none did, or no decision)."""
+    if decision is None or not decision.test:
+        return None
+    return next((c for c in decision.checks if c.name == decision.test and not c.deletes), None)
 
 
 class TruthCauses:
@@ -134,9 +142,10 @@ class TruthCauses:
         sig = (point_significance(front, r, c, self.k_sigma) if front is not None and inside
                else PointSignificance(math.nan, math.nan, math.nan))
 
-        def say(cause: Cause, detail: str = "", track: int | None = None) -> TruthExplanation:
+        def say(cause: Cause, detail: str = "", track: int | None = None, held: Check | None = None) -> TruthExplanation:
+            test = ("", math.nan, math.nan) if held is None else (held.name, held.value, held.level)
             return TruthExplanation(f, tid, x, y, cause, detail, sig.value, sig.residual, sig.change, sig.threshold,
-                                    det_dist, track)
+                                    det_dist, track, *test)
 
         if tid in matched:
             return say(Cause.MATCHED, "", matched[tid])
@@ -161,12 +170,15 @@ class TruthCauses:
             if v is None:
                 return say(Cause.NOT_CONFIRMED, f"tentative track {t.track_id} ({t.hits} hits); tracker "
                            f"'{self.tracker}' reports no confirmation tests", t.track_id)
-            if t.hits < v.min_hits:
-                return say(Cause.LATENCY, f"tentative track {t.track_id}: {t.hits} hits < {v.min_hits}, the "
-                           f"fewest any track is confirmed in ({v.rule})", t.track_id)
             dec = v.decision(t.track_id)
+            held = held_by(dec)
+            if t.hits < v.min_hits:
+                by = f"; held back by {held}" if held is not None else ""
+                return say(Cause.LATENCY, f"tentative track {t.track_id}: {t.hits} hits < {v.min_hits}, the "
+                           f"fewest any track is confirmed in ({v.rule}){by}", t.track_id, held)
             why = dec.reason if dec is not None and dec.reason else "tentative"
-            return say(Cause.NOT_CONFIRMED, f"track {t.track_id} ({t.hits} hits) held back by {why}", t.track_id)
+            return say(Cause.NOT_CONFIRMED, f"track {t.track_id} ({t.hits} hits) held back by {why}", t.track_id,
+                       held)
         if tracks:  # a confirmed track within the gate that the scorer gave another target
             t = min(tracks, key=lambda t: math.hypot(t.x - x, t.y - y))
             other = [g for g, k in matched.items() if k == t.track_id]

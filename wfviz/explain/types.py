@@ -63,6 +63,9 @@ class TruthExplanation:
     threshold: float = math.nan
     det_dist: float = math.nan
     track_id: int | None = None
+    test: str = ""
+    statistic: float = math.nan
+    level: float = math.nan
 
 
 @dataclass(frozen=True)

@@ -139,12 +139,13 @@ class Motion:
     t2: np.ndarray
     steady_error: np.ndarray  #: standard error of ``steady`` under the position scatter σ (px)
     parts: np.ndarray  #: parts ``steady`` was measured over: ``parts`` where 2 positions per part are recorded, else 3
+    per_part: np.ndarray  #: positions in each of the oldest and newest parts (1: no median, single positions)
 
 
 def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, parts: int = 3) -> Motion:
     """:class:`Motion` of each track from positions ``xy`` (N, K, 2) at frames ``t`` (N, K)
     where ``ok`` (N, K), its steady progress over ``parts`` parts (fewer, at least 3, while
-    there are fewer than 2 positions per part). Pairs, not a least-squares line: a centroid that jumps once to a
+    there are fewer than 2 positions per part; from 3 positions on, one a part). Pairs, not a least-squares line: a centroid that jumps once to a
     neighbouring spot and stays there, or hops back and forth, moves neither the median slope
     nor the median residual much (up to about 29 % of the pairs may be wild). Zero with fewer
     than 3 positions."""
@@ -178,15 +179,39 @@ def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, pa
     enough = npos >= 3
     t2 = np.where(enough, speed ** 2 * np.nan_to_num(sxx) / sigma ** 2, 0.0)
     del span
-    # a part's median of k positions scatters by 1.2533 σ / √k; a progress is a difference of two
+    # a part's median of k positions scatters by 1.2533 σ / √k (kept for k <= 2 too, where it is
+    # their mean: real centroids' tails are heavier than Gaussian); a progress is a difference of two
     n_parts = np.clip(npos // 2, 3, max(parts, 3))
     part = np.maximum(npos // n_parts, 1)
     error = np.sqrt(2.0) * 1.2533 * sigma / np.sqrt(part)
-    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok, n_parts), t2, error, n_parts)
+    single = enough & (part < 2)
+    if single.any():  # single positions a part: a median of the residuals of 3 to 5 says little
+        rows = np.nonzero(single)[0]
+        error[rows] = np.maximum(error[rows], np.sqrt(2.0) * 1.2533 * _path_scatter(t[rows], xy[rows], ok[rows]))
+    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok, n_parts), t2, error, n_parts, part)
+
+
+def _path_scatter(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
+    """Each track's position scatter σ (px) from how far each position lies off the chord of its
+    two neighbours in time: for a target at constant velocity that is noise alone, of variance
+    σ² (1 + a² + b²) per axis (a, b: the neighbours' shares of the time between them), whatever
+    the velocity (the variate-difference method); 0 with fewer than 3 positions."""
+    out = np.zeros(len(t))
+    for i in range(len(t)):
+        order = np.argsort(t[i][ok[i]])
+        tt, p = t[i][ok[i]][order], xy[i][ok[i]][order]
+        if len(p) < 3:
+            continue
+        span = tt[2:] - tt[:-2]
+        b = (tt[1:-1] - tt[:-2]) / span
+        a = 1.0 - b
+        off = p[1:-1] - (a[:, None] * p[:-2] + b[:, None] * p[2:])
+        out[i] = float(np.sqrt(np.mean((off ** 2).sum(axis=1) / (2.0 * (1.0 + a * a + b * b)))))
+    return out
 
 
 def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) -> np.ndarray:
-    """:attr:`Motion.steady` of each track over its ``parts`` (0 with fewer than 2 positions
+    """:attr:`Motion.steady` of each track over its ``parts`` (0 with fewer than one position
     per part): the oldest and newest parts hold ``n // parts`` positions each, the middle ones
     share the rest."""
     out = np.zeros(len(t))
@@ -194,7 +219,7 @@ def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) ->
         p = xy[i][ok[i]][np.argsort(t[i][ok[i]])]
         n_parts = int(parts[i])
         k = len(p) // n_parts
-        if k < 2:
+        if k < 1:
             continue
         inner = np.array_split(p[k:len(p) - k], n_parts - 2)
         m = np.array([np.median(q, axis=0) for q in (p[:k], *inner, p[len(p) - k:])])

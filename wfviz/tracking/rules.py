@@ -26,7 +26,7 @@ from wfviz.tracking.decision import Decisions, Evidence, Statistic
 from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
 STEADY_PARTS = 4  # confirmation.motion: parts of the history between which steady progress is asked for (chosen on real half A)
-MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per part (at least 3 parts)
+MOTION_MIN_POSITIONS = 3  # confirmation.motion: steady progress needs a position per part (at least 3 parts)
 STEADY_Z = 4.0  # steady progress: standard errors of the parts' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
@@ -200,6 +200,14 @@ def static_prior(count: np.ndarray, exposure: np.ndarray, own: np.ndarray) -> np
     return -np.expm1(-static_rate(np.maximum(count - own, 0.0), exposure))
 
 
+def least_static_prior(tc: TrackingConfig) -> float:
+    """The least :func:`static_prior` the clutter map can give anywhere: no persistent detection
+    about a place searched in every frame of its memory (``clutter_memory``; each of the 3 × 3
+    cells' exposure then tends to it)."""
+    exposure = 9.0 * tc.clutter_memory
+    return float(static_prior(np.zeros(1), np.full(1, exposure), np.zeros(1))[0])
+
+
 def static_levels(th: confirmation.Thresholds, prior: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
     """Levels of the two tests against static clutter at a place whose static-clutter prior is
     ``prior`` (:func:`static_prior`): the false-confirmation rate α is what the tests must keep
@@ -251,15 +259,21 @@ class SequentialRule(Rule):
 
     def min_hits(self, levels: confirmation.Thresholds | None) -> int:
         """The "not clutter" test gains at most ln(target_change_rate / static_change_rate) per
-        hit (a changed hit), so it needs ``confirm`` / that many hits; the motion test's steady
-        progress is 0 with fewer than 6 positions (:func:`wfviz.tracking.confirmation.motion`);
-        the persistence test can be passed by the birth hit alone."""
+        hit (a changed hit), so it needs its level / that many hits; the motion test's steady
+        progress is 0 with fewer than 3 positions (:func:`wfviz.tracking.confirmation.motion`);
+        the persistence test can be passed by the birth hit alone, but a track is decided on
+        from the frame after its birth, where it needs a hit: 2 at least. With the clutter map both
+        levels are lowest where its static prior is (:func:`least_static_prior`): the motion
+        test is asked for everywhere while that prior exceeds α."""
         tc = self.tcfg
         per_hit = math.log(tc.target_change_rate / tc.static_change_rate)
-        need = 1
+        need = 2
+        prior = least_static_prior(tc) if tc.clutter_map else 1.0
         if levels is not None and per_hit > 0:
-            need = max(need, math.ceil(levels.confirm / per_hit - 1e-9))
-        if tc.require_motion and tc.min_motion > 0 and not tc.clutter_map:
+            level = max(levels.confirm + math.log(prior), 0.0)
+            need = max(need, math.ceil(level / per_hit - 1e-9))
+        motion_asked = not tc.clutter_map or levels is None or prior > levels.alpha
+        if tc.require_motion and tc.min_motion > 0 and motion_asked:
             need = max(need, MOTION_MIN_POSITIONS)
         return need
 
@@ -336,6 +350,10 @@ class SequentialRule(Rule):
                 if STEADY_Z > 0:  # significant progress between all parts suffices below that
                     steady_level[r] = np.where(steady_level[r] > 0,
                                                np.minimum(steady_level[r], STEADY_Z * mo.steady_error), 0.0)
+                # single positions a part (fewer than 6 recorded): no median stands against a wild
+                # centroid, so min_motion's share does not suffice: STEADY_Z standard errors must
+                single = mo.per_part < 2
+                steady_level[r] = np.where(single & (steady_level[r] > 0), STEADY_Z * mo.steady_error, steady_level[r])
                 steady_level[r] = np.where(steady_level[r] > 0, np.maximum(steady_level[r], reg), 0.0)
                 confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
                 t2[r], steady[r] = mo.t2, mo.steady
