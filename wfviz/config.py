@@ -170,7 +170,7 @@ class TrackingConfig:
     clutter_cell: int = field(default=16, metadata=value_range(2, None))  # px, in the scene
     min_motion: float = field(default=1.5, metadata=value_range(0.0, None))  # px, net (tracking.confirmation)
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
-    target_change_rate: float = field(default=0.5, metadata=value_range(0.01, 0.999))
+    target_change_rate: float = field(default=0.7, metadata=value_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=value_range(1, None))
     confirm_significance: float = field(default=0.0, metadata=value_range(0.0, None))
     confirm_blobness: float = field(default=0.0, metadata=value_range(0.0, 1.0))

@@ -232,8 +232,8 @@ class SequentialRule(Rule):
     target for a fixed object, or a lamp that moved once): Page's CUSUM (E. S. Page,
     "Continuous inspection schemes", Biometrika 41, 1954) of each hit's clutter evidence since
     confirmation, W ← max(0, W − e), reaches ln((1 − α) / β), the level at which the confirmation
-    test itself decides "static clutter" (with the default rates 8 unchanged hits in a row;
-    a new hit takes 2.3 off W)."""
+    test itself decides "static clutter" (with the default rates 4 unchanged hits in a row;
+    a new hit takes 2.6 off W)."""
 
     Stats = SequentialStats
     stats: SequentialStats
