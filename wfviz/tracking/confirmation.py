@@ -132,13 +132,15 @@ class Motion:
     position of each of ``parts`` consecutive parts of the positions (oldest first) to that of
     the next (px): a target keeps moving, a centroid that jumps once to a neighbouring spot makes
     its progress between two neighbouring parts only, or splits it over the two differences
-    next to the part the jump falls in; with 4 parts a third difference stays free of it."""
+    next to the part the jump falls in; with 4 parts a third difference stays free of it.
+    ``consecutive``: :func:`consecutive_progress` (NaN: not measured)."""
 
     velocity: np.ndarray
     steady: np.ndarray
     t2: np.ndarray
     steady_error: np.ndarray  #: standard error of ``steady`` under the position scatter σ (px)
     parts: np.ndarray  #: parts ``steady`` was measured over: ``parts`` where 2 positions per part are recorded, else 3
+    consecutive: np.ndarray | None = None
 
 
 def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, parts: int = 3) -> Motion:
@@ -182,7 +184,37 @@ def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, pa
     n_parts = np.clip(npos // 2, 3, max(parts, 3))
     part = np.maximum(npos // n_parts, 1)
     error = np.sqrt(2.0) * 1.2533 * sigma / np.sqrt(part)
-    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok, n_parts), t2, error, n_parts)
+    v = np.where(enough[:, None], v, 0.0)
+    return Motion(v, _steady(t, xy, ok, n_parts), t2, error, n_parts, consecutive_progress(t, xy, ok, v))
+
+
+def consecutive_progress(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Per track, the progress its positions ``xy`` (N, K, 2) at frames ``t`` (N, K) where ``ok``
+    (oldest first) make between positions of consecutive frames, in the direction of
+    ``velocity`` (N, 2), as a share of the progress that velocity predicts over those frames (1:
+    a target that moves alike whether it is detected or not). A track that takes separate static
+    spots, re-acquiring the next one across missed frames in its grown gate, makes its progress
+    in the jumps: its share is near 0. NaN (not measured) without a missed frame between two
+    positions (the share is then the whole progress, which the other motion tests judge),
+    without positions of consecutive frames, or without velocity."""
+    n, k = t.shape
+    last = np.maximum.accumulate(np.where(ok, np.arange(k), -1), axis=1)
+    prev = np.empty_like(last)
+    prev[:, 0] = -1
+    prev[:, 1:] = last[:, :-1]                # the position before each one (-1: none)
+    pair = ok & (prev >= 0)
+    rows = np.arange(n)[:, None]
+    p = np.maximum(prev, 0)
+    dt = t - t[rows, p]
+    step = pair & (dt > 0) & (dt < 1.5)       # positions of consecutive frames
+    gap = pair & (dt >= 1.5)                  # a missed frame between them
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    d = xy - xy[rows, p]
+    along = (d[..., 0] * velocity[:, :1] + d[..., 1] * velocity[:, 1:]) / np.where(speed > 0, speed, 1.0)[:, None]
+    made = np.where(step, along, 0.0).sum(axis=1)
+    predicted = speed * step.sum(axis=1)
+    measured = gap.any(axis=1) & (predicted > 0)
+    return np.where(measured, made / np.where(measured, predicted, 1.0), np.nan)
 
 
 def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) -> np.ndarray:
