@@ -1,7 +1,8 @@
-"""Tracks that hop from one static spot to the next across their misses (the false tracks of
-the DAUB ground sequences): the motion test's consecutive progress
-(:func:`wfviz.tracking.confirmation.consecutive_progress`) holds them back, and the explanation
-names them ``hopping`` (wfviz.explain.false_tracks)."""
+"""The false tracks of the DAUB ground sequences: tracks that hop from one static spot to the
+next across their misses (the motion test's consecutive progress,
+:func:`wfviz.tracking.confirmation.consecutive_progress`, holds them back; the explanation names
+them ``hopping``) and tracks on a road whose detected piece slides along it
+(:func:`wfviz.tracking.confirmation.slide`; explained as ``structure``)."""
 
 from __future__ import annotations
 
@@ -16,7 +17,7 @@ from wfviz.explain.types import FalseCause
 from wfviz.stages.detection import Detections
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import Measurements, TrackManager, TrackState
-from wfviz.tracking.confirmation import consecutive_progress, motion
+from wfviz.tracking.confirmation import consecutive_progress, motion, slide
 
 
 def _chain(frames: list[int], spots: list[tuple[float, float]], per: int, noise: float = 0.1,
@@ -55,19 +56,21 @@ def test_without_a_missed_frame_the_share_is_not_measured() -> None:
     assert np.isnan(_share(t, xy))
 
 
-def _manager(share: float) -> TrackManager:
-    return TrackManager(KalmanConfig(), dataclasses.replace(TrackingConfig(), consecutive_share=share, clutter_map=False))
+def _manager(share: float = 0.5, max_slide: float = 1.75) -> TrackManager:
+    return TrackManager(KalmanConfig(), dataclasses.replace(TrackingConfig(), consecutive_share=share,
+                                                            max_slide=max_slide, clutter_map=False))
 
 
-def _run(m: TrackManager, positions: list[tuple[float, float] | None]) -> bool:
-    """Feed one bright, new detection a frame (None: nothing); whether a track got confirmed."""
+def _run(m: TrackManager, positions: list[tuple[float, float] | None], size: tuple[int, int] = (3, 3)) -> bool:
+    """Feed one bright, new detection a frame (None: nothing) whose component is ``size`` (w, h)
+    px; whether a track got confirmed."""
     confirmed = False
     for k, p in enumerate(positions):
         preds = m.predict(k)
         xy = np.zeros((0, 2)) if p is None else np.array([p], dtype=float)
         n = len(xy)
         m.update(m.associate(preds, xy), Measurements(xy, significance=np.full(n, 12.0), blobness=np.ones(n),
-                                                      novelty=np.full(n, 12.0)))
+                                                      novelty=np.full(n, 12.0), size=np.tile(size, (n, 1))))
         confirmed |= bool(m.confirmed_ids)
     return confirmed
 
@@ -81,10 +84,28 @@ def _hops() -> list[tuple[float, float] | None]:
 
 
 def test_the_motion_test_holds_a_hopping_chain_back_and_confirms_a_target_with_gaps() -> None:
-    assert _run(_manager(0.0), _hops()), "the chain was expected to pass the other motion tests"
-    assert not _run(_manager(0.5), _hops())
+    assert _run(_manager(share=0.0), _hops()), "the chain was expected to pass the other motion tests"
+    assert not _run(_manager(), _hops())
     target = [None if k % 4 == 3 else (20.0 + 1.0 * k, 30.0 + 0.2 * k) for k in range(35)]
-    assert _run(_manager(0.5), target)
+    assert _run(_manager(), target)
+
+
+def test_slide_is_the_components_length_along_the_way_over_across() -> None:
+    size = np.array([[[8.0, 4.0]] * 5, [[3.0, 3.0]] * 5, [[8.0, 4.0]] * 5])
+    ok = np.ones((3, 5), dtype=bool)
+    r = slide(size, ok, np.array([[1.0, 0.0], [1.0, 0.0], [0.0, -1.0]]))
+    assert np.allclose(r, [2.0, 1.0, 0.5])
+    assert np.isnan(slide(np.full((1, 5, 2), np.nan), ok[:1], np.array([[1.0, 0.0]]))[0])
+
+
+def test_the_motion_test_holds_back_a_piece_of_a_line_sliding_along_it() -> None:
+    """A detection moving 1 px a frame along x: on 8 x 4 px components (a road's piece) it is not
+    confirmed; compact (3 x 3), or moving across them (4 x 8), it is."""
+    way = [(20.0 + k, 30.0) for k in range(30)]
+    assert _run(_manager(max_slide=0.0), way, (8, 4)), "expected to confirm without the test"
+    assert not _run(_manager(), way, (8, 4))
+    assert _run(_manager(), way, (3, 3))
+    assert _run(_manager(), way, (4, 8))
 
 
 def _result(k: int, tracks: list[TrackState], boxes: list[tuple[float, float, int, int]]) -> FrameResult:

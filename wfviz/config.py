@@ -173,6 +173,10 @@ class TrackingConfig:
     # consecutive frames (tracking.confirmation.consecutive_progress): not only in the jumps
     # between separate spots across its misses; 0: off (chosen on real half A)
     consecutive_share: float = field(default=0.5, metadata=value_range(0.0, 1.0))
+    # a track whose hits' components are, in the median, this many times longer along its way in
+    # the scene than across it slides along a line (a road, an edge: the detected piece moves
+    # along it) and is not confirmed (tracking.confirmation.slide); 0: off (chosen on real half A)
+    max_slide: float = field(default=1.75, metadata=value_range(0.0, None))
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.5, metadata=value_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=value_range(1, None))

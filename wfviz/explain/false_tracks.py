@@ -21,8 +21,8 @@
    elongated (``ELONGATION`` times longer than wide and ``LINE_LENGTH`` px long), extended
    (``EXTENDED_AREA`` px or more) or a ridge (blobness below ``RIDGE_BLOBNESS``), or it slides
    along a line: the components of its last hits (``STATIC_MIN`` at least) are, in the median,
-   ``SLIDE_ELONGATION`` times longer along its way in the scene than across it, and that way is
-   ``MIN_SPEED`` px a frame at least;
+   ``SLIDE_ELONGATION`` times longer along its way in the scene than across it
+   (:func:`wfviz.tracking.confirmation.slide`), and that way is ``MIN_SPEED`` px a frame at least;
 8. ``unknown``; but a track that had a cause other than ``unknown`` on an earlier frame of its
    life keeps it (said in the detail: "since frame N"): it is still the same spot, chain or
    line, on a frame where its own evidence (a compact hit on its line, a few consecutive hits
@@ -43,7 +43,7 @@ from wfviz.stages.front_end import FrontEndResult
 from wfviz.stages.horizon import horizon_confident
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import TrackState
-from wfviz.tracking.confirmation import motion
+from wfviz.tracking.confirmation import motion, slide
 
 Point = tuple[int, float, float]
 
@@ -209,14 +209,12 @@ class FalseCauses:
         speed = float(np.hypot(*way))
         if speed < MIN_SPEED:
             return ""
-        u = np.abs(way) / speed
-        wh = np.asarray(shapes, dtype=np.float64)
-        along = float(np.median(wh @ u))
-        across = float(np.median(wh @ u[::-1]))
-        if along < SLIDE_ELONGATION * max(across, 1.0):
+        wh = np.asarray(shapes, dtype=np.float64)[None]
+        ratio = float(slide(wh, np.ones(wh.shape[:2], dtype=bool), way[None])[0])
+        if not ratio >= SLIDE_ELONGATION:
             return ""
-        return (f"slides along a line: its last {len(shapes)} hits' components are {along:.1f} px long along its "
-                f"way ({speed:.2f} px/frame in the scene) and {across:.1f} px across it")
+        return (f"slides along a line: its last {len(shapes)} hits' components are {ratio:.1f} times longer along "
+                f"its way ({speed:.2f} px/frame in the scene) than across it")
 
     def _cause(self, result: FrameResult, front: FrontEndResult | None, t: TrackState, shown: list[Point],
                matches: tuple[tuple[int, int, float], ...], common: dict[int, str],

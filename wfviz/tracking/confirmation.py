@@ -217,6 +217,31 @@ def consecutive_progress(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, velocity
     return np.where(measured, made / np.where(measured, predicted, 1.0), np.nan)
 
 
+def slide(size: np.ndarray, ok: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Per track, how many times longer its hits' components (``size`` (N, K, 2): width, height;
+    NaN unknown; where ``ok``) are along the direction of ``velocity`` (N, 2) than across it, the
+    median of each over its hits (across at least 1 px): about 1 for a compact target, 2 and
+    more for the piece of a road or an edge whose detected part moves along it. NaN: no size
+    known, or no velocity."""
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    u = np.abs(velocity) / np.where(speed > 0, speed, 1.0)[:, None]
+    wh = np.where(ok[..., None], size, np.nan)
+    along = wh[..., 0] * u[:, :1] + wh[..., 1] * u[:, 1:]
+    across = wh[..., 0] * u[:, 1:] + wh[..., 1] * u[:, :1]
+    count = np.isfinite(along).sum(axis=1)
+    ratio = _median(along, count) / np.maximum(_median(across, count), 1.0)
+    return np.where((count > 0) & (speed > 0), ratio, np.nan)
+
+
+def _median(a: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Per row, the median of the ``count`` finite values of ``a`` (N, K) (NaN elsewhere; any
+    value where ``count`` is 0)."""
+    s = np.sort(a, axis=1)  # NaN last
+    rows = np.arange(len(a))
+    lo, hi = np.maximum((count - 1) // 2, 0), np.maximum(count // 2, 0)
+    return 0.5 * (s[rows, np.minimum(lo, a.shape[1] - 1)] + s[rows, np.minimum(hi, a.shape[1] - 1)])
+
+
 def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) -> np.ndarray:
     """:attr:`Motion.steady` of each track over its ``parts`` (0 with fewer than 2 positions
     per part): the oldest and newest parts hold ``n // parts`` positions each, the middle ones
