@@ -108,6 +108,15 @@ def test_the_motion_test_holds_back_a_piece_of_a_line_sliding_along_it() -> None
     assert _run(_manager(), way, (4, 8))
 
 
+def test_a_slow_elongated_target_is_not_judged_by_its_direction() -> None:
+    """Below SLIDE_SPEED a track's way has no direction to compare its components with (a
+    hovering helicopter's body): the slide test does not hold it back."""
+    from wfviz.tracking.rules import SLIDE_SPEED
+
+    way = [(20.0 + 0.5 * SLIDE_SPEED * k, 30.0) for k in range(60)]
+    assert _run(_manager(), way, (8, 4))
+
+
 def _result(k: int, tracks: list[TrackState], boxes: list[tuple[float, float, int, int]]) -> FrameResult:
     n = len(boxes)
     xy = np.array([[x, y] for x, y, _, _ in boxes], dtype=float).reshape(-1, 2)

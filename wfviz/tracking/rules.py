@@ -27,6 +27,7 @@ from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
 STEADY_PARTS = 4  # confirmation.motion: parts of the history between which steady progress is asked for (chosen on real half A)
 MOTION_MIN_POSITIONS = 6  # confirmation.motion: steady progress needs 2 positions per part (at least 3 parts)
+SLIDE_SPEED = 0.3  # px/frame: the slide test judges tracks this fast at least (a hovering target's way has no direction)
 STEADY_Z = 4.0  # steady progress: standard errors of the parts' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
@@ -342,6 +343,7 @@ class SequentialRule(Rule):
                 hops = (steady_level[r] > 0) & (share < tc.consecutive_share) & (tc.consecutive_share > 0)
                 # the piece of a line whose detected part moves along it
                 along = confirmation.slide(tracks.motion_wh[r], tracks.motion_ok[r], mo.velocity)
+                along[np.hypot(mo.velocity[:, 0], mo.velocity[:, 1]) < SLIDE_SPEED] = np.nan
                 slides = (steady_level[r] > 0) & (along >= tc.max_slide) & (tc.max_slide > 0)
                 confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))
                           | hops | slides]] = False
