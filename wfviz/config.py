@@ -169,6 +169,14 @@ class TrackingConfig:
     clutter_memory: float = field(default=200.0, metadata=value_range(1.0, None))  # frames
     clutter_cell: int = field(default=16, metadata=value_range(2, None))  # px, in the scene
     min_motion: float = field(default=1.5, metadata=value_range(0.0, None))  # px, net (tracking.confirmation)
+    # a track with missed frames must make this share of its velocity's progress between hits of
+    # consecutive frames (tracking.confirmation.consecutive_progress): not only in the jumps
+    # between separate spots across its misses; 0: off (chosen on real half A)
+    consecutive_share: float = field(default=0.5, metadata=value_range(0.0, 1.0))
+    # a track whose hits' components are, in the median, this many times longer along its way in
+    # the scene than across it slides along a line (a road, an edge: the detected piece moves
+    # along it) and is not confirmed (tracking.confirmation.slide); 0: off (chosen on real half A)
+    max_slide: float = field(default=1.75, metadata=value_range(0.0, None))
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.7, metadata=value_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=value_range(1, None))

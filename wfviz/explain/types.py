@@ -35,7 +35,8 @@ class FalseCause(StrEnum):
 
     STATIC_IN_SCENE = "static_in_scene"  # fixed in scene coordinates (a star, a lamp, a roof corner)
     CAMERA_MOTION = "camera_motion"      # moves only because the camera's motion was not compensated
-    STRUCTURE = "structure"              # on an edge, line or extended object
+    HOPPING = "hopping"                  # hops across its misses from one static spot to the next
+    STRUCTURE = "structure"              # on an edge, line or extended object, or sliding along a line
     DEFECT = "defect"                    # on a pixel flagged as a sensor defect
     DUPLICATE = "duplicate"              # a second track on a target another track matches
     OFF_TARGET = "off_target"            # a track that matched a target and drifted off it

@@ -72,6 +72,7 @@ FALSE_LABELS: dict[FalseCause, tuple[int, str]] = {
     FalseCause.DUPLICATE: (5, "false track: duplicate"),
     FalseCause.OFF_TARGET: (6, "false track: off target"),
     FalseCause.UNKNOWN: (7, "false track: unknown"),
+    FalseCause.HOPPING: (8, "false track: hopping between spots"),
 }
 #: a test held back a tentative track this many consecutive frames: one log line
 HELD_FRAMES = 25

@@ -24,7 +24,8 @@ class Measurements:
     static-clutter label (:mod:`wfviz.stages.clutter`: 1 static, 0 not, NaN undecided);
     ``density``: false detections per pixel around it (:class:`~wfviz.tracking.confirmation.DetectionDensity`);
     ``linearity``: how much of it is part of a line or an edge (:func:`wfviz.stages.detection.linearity`),
-    line-like above ``max_linearity`` (:meth:`line_like`).
+    line-like above ``max_linearity`` (:meth:`line_like`); ``size`` (N, 2): its component's width
+    and height (px).
     """
 
     xy: np.ndarray
@@ -35,6 +36,7 @@ class Measurements:
     density: np.ndarray | None = None
     linearity: np.ndarray | None = None
     max_linearity: float = 1.0
+    size: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(len(self.xy))

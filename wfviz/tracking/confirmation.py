@@ -132,7 +132,8 @@ class Motion:
     position of each of ``parts`` consecutive parts of the positions (oldest first) to that of
     the next (px): a target keeps moving, a centroid that jumps once to a neighbouring spot makes
     its progress between two neighbouring parts only, or splits it over the two differences
-    next to the part the jump falls in; with 4 parts a third difference stays free of it."""
+    next to the part the jump falls in; with 4 parts a third difference stays free of it.
+    ``consecutive``: :func:`consecutive_progress` (NaN: not measured)."""
 
     velocity: np.ndarray
     steady: np.ndarray
@@ -140,6 +141,7 @@ class Motion:
     steady_error: np.ndarray  #: standard error of ``steady`` under the position scatter σ (px)
     parts: np.ndarray  #: parts ``steady`` was measured over: ``parts`` where 2 positions per part are recorded, else 3
     per_part: np.ndarray  #: positions in each of the oldest and newest parts (1: no median, single positions)
+    consecutive: np.ndarray | None = None
 
 
 def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, parts: int = 3) -> Motion:
@@ -188,7 +190,8 @@ def motion(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, sigma_floor: float, pa
     if single.any():  # single positions a part: a median of the residuals of 3 to 5 says little
         rows = np.nonzero(single)[0]
         error[rows] = np.maximum(error[rows], np.sqrt(2.0) * 1.2533 * _path_scatter(t[rows], xy[rows], ok[rows]))
-    return Motion(np.where(enough[:, None], v, 0.0), _steady(t, xy, ok, n_parts), t2, error, n_parts, part)
+    v = np.where(enough[:, None], v, 0.0)
+    return Motion(v, _steady(t, xy, ok, n_parts), t2, error, n_parts, part, consecutive_progress(t, xy, ok, v))
 
 
 def _path_scatter(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
@@ -208,6 +211,60 @@ def _path_scatter(t: np.ndarray, xy: np.ndarray, ok: np.ndarray) -> np.ndarray:
         off = p[1:-1] - (a[:, None] * p[:-2] + b[:, None] * p[2:])
         out[i] = float(np.sqrt(np.mean((off ** 2).sum(axis=1) / (2.0 * (1.0 + a * a + b * b)))))
     return out
+
+
+def consecutive_progress(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Per track, the progress its positions ``xy`` (N, K, 2) at frames ``t`` (N, K) where ``ok``
+    (oldest first) make between positions of consecutive frames, in the direction of
+    ``velocity`` (N, 2), as a share of the progress that velocity predicts over those frames (1:
+    a target that moves alike whether it is detected or not). A track that takes separate static
+    spots, re-acquiring the next one across missed frames in its grown gate, makes its progress
+    in the jumps: its share is near 0. NaN (not measured) without a missed frame between two
+    positions (the share is then the whole progress, which the other motion tests judge),
+    without positions of consecutive frames, or without velocity."""
+    n, k = t.shape
+    last = np.maximum.accumulate(np.where(ok, np.arange(k), -1), axis=1)
+    prev = np.empty_like(last)
+    prev[:, 0] = -1
+    prev[:, 1:] = last[:, :-1]                # the position before each one (-1: none)
+    pair = ok & (prev >= 0)
+    rows = np.arange(n)[:, None]
+    p = np.maximum(prev, 0)
+    dt = t - t[rows, p]
+    step = pair & (dt > 0) & (dt < 1.5)       # positions of consecutive frames
+    gap = pair & (dt >= 1.5)                  # a missed frame between them
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    d = xy - xy[rows, p]
+    along = (d[..., 0] * velocity[:, :1] + d[..., 1] * velocity[:, 1:]) / np.where(speed > 0, speed, 1.0)[:, None]
+    made = np.where(step, along, 0.0).sum(axis=1)
+    predicted = speed * step.sum(axis=1)
+    measured = gap.any(axis=1) & (predicted > 0)
+    return np.where(measured, made / np.where(measured, predicted, 1.0), np.nan)
+
+
+def slide(size: np.ndarray, ok: np.ndarray, velocity: np.ndarray) -> np.ndarray:
+    """Per track, how many times longer its hits' components (``size`` (N, K, 2): width, height;
+    NaN unknown; where ``ok``) are along the direction of ``velocity`` (N, 2) than across it, the
+    median of each over its hits (across at least 1 px): about 1 for a compact target, 2 and
+    more for the piece of a road or an edge whose detected part moves along it. NaN: no size
+    known, or no velocity."""
+    speed = np.hypot(velocity[:, 0], velocity[:, 1])
+    u = np.abs(velocity) / np.where(speed > 0, speed, 1.0)[:, None]
+    wh = np.where(ok[..., None], size, np.nan)
+    along = wh[..., 0] * u[:, :1] + wh[..., 1] * u[:, 1:]
+    across = wh[..., 0] * u[:, 1:] + wh[..., 1] * u[:, :1]
+    count = np.isfinite(along).sum(axis=1)
+    ratio = _median(along, count) / np.maximum(_median(across, count), 1.0)
+    return np.where((count > 0) & (speed > 0), ratio, np.nan)
+
+
+def _median(a: np.ndarray, count: np.ndarray) -> np.ndarray:
+    """Per row, the median of the ``count`` finite values of ``a`` (N, K) (NaN elsewhere; any
+    value where ``count`` is 0)."""
+    s = np.sort(a, axis=1)  # NaN last
+    rows = np.arange(len(a))
+    lo, hi = np.maximum((count - 1) // 2, 0), np.maximum(count // 2, 0)
+    return 0.5 * (s[rows, np.minimum(lo, a.shape[1] - 1)] + s[rows, np.minimum(hi, a.shape[1] - 1)])
 
 
 def _steady(t: np.ndarray, xy: np.ndarray, ok: np.ndarray, parts: np.ndarray) -> np.ndarray:

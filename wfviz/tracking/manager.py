@@ -347,7 +347,8 @@ class TrackManager:
             significance=None if d.significance is None else d.significance[born],
             blobness=None if d.blobness is None else d.blobness[born], novelty=novelty[born],
             clutter=None if d.clutter is None else d.clutter[born],
-            density=None if d.density is None else d.density[born])
+            density=None if d.density is None else d.density[born],
+            size=None if d.size is None else d.size[born])
         n = len(self)
         significance = np.full(n, np.nan)  # per track row: its hit's (NaN: none)
         hit_novelty = np.full(n, np.nan)
@@ -368,7 +369,8 @@ class TrackManager:
             clutter = np.full(n, np.nan)
             clutter[list(labels)] = list(labels.values())
         self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k,
-                     track_clutter, hit_linearity, d.max_linearity)
+                     track_clutter, hit_linearity, d.max_linearity,
+                     None if d.size is None else np.asarray(d.size, dtype=np.float64)[det])
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
@@ -401,9 +403,11 @@ class TrackManager:
                 density: np.ndarray | None, significance: np.ndarray, novelty: np.ndarray,
                 gate_k: np.ndarray | None,
                 track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
-                linearity: np.ndarray | None = None, max_linearity: float = 1.0) -> None:
+                linearity: np.ndarray | None = None, max_linearity: float = 1.0,
+                size: np.ndarray | None = None) -> None:
         """Report, count misses, let the rule decide (the :class:`Evidence` of the measured
-        ``rows`` with measurements ``z``), end the tracks it deletes and those :meth:`_gone`."""
+        ``rows`` with measurements ``z``, their components' sizes ``size``), end the tracks it
+        deletes and those :meth:`_gone`."""
         t = self.tracks
         n = len(self)
         measured = np.zeros(n, dtype=bool)
@@ -420,7 +424,7 @@ class TrackManager:
             t.misses[t.meeting & (nearest >= 0)] = 0
         t.misses[missed] += 1
         moved = np.hypot(reported[:, 0] - t.origin[:, 0], reported[:, 1] - t.origin[:, 1])
-        t.push_motion(rows, self._frame, z - self.offset, self.registration_error)
+        t.push_motion(rows, self._frame, z - self.offset, self.registration_error, size)
         g = self._gates
         half = g.half if len(g.half) == n else np.full((n, 2), self.kcfg.gate_max)
         ids, was_confirmed = t.ids, t.confirmed.copy()
@@ -503,6 +507,8 @@ class TrackManager:
         new.motion_xy[:, -1] = xy - self.offset
         new.motion_ok[:, -1] = True
         new.motion_reg[:, -1] = self.registration_error
+        if births.size is not None:
+            new.motion_wh[:, -1] = births.size
         self.rule.start(births, self._birth_half)
         self.tracks.append(new)
         if births.clutter is not None:

@@ -27,6 +27,7 @@ from wfviz.tracking.table import MOTION_HISTORY, Columns, TrackTable
 
 STEADY_PARTS = 4  # confirmation.motion: parts of the history between which steady progress is asked for (chosen on real half A)
 MOTION_MIN_POSITIONS = 3  # confirmation.motion: steady progress needs a position per part (at least 3 parts)
+SLIDE_SPEED = 0.3  # px/frame: the slide test judges tracks this fast at least (a hovering target's way has no direction)
 STEADY_Z = 4.0  # steady progress: standard errors of the parts' medians that count as progress (chosen on real half A)
 MOVER_MAX_STATIC = 0.25  # tracking.confirm_moving: a mover's mean static-clutter label at most this
 
@@ -335,7 +336,7 @@ class SequentialRule(Rule):
         if not_line is not None:
             stats.append(not_line)
         if tc.require_motion:
-            t2, steady = np.full(n, np.nan), np.full(n, np.nan)
+            t2, steady, consecutive, sliding = (np.full(n, np.nan) for _ in range(4))
             # steady progress is asked for wherever motion is
             steady_level = np.where(motion_level > 0, tc.min_motion / 2, 0.0)
             if confirm.any():
@@ -355,11 +356,25 @@ class SequentialRule(Rule):
                 single = mo.per_part < 2
                 steady_level[r] = np.where(single & (steady_level[r] > 0), STEADY_Z * mo.steady_error, steady_level[r])
                 steady_level[r] = np.where(steady_level[r] > 0, np.maximum(steady_level[r], reg), 0.0)
-                confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))]] = False
-                t2[r], steady[r] = mo.t2, mo.steady
+                # a chain of separate spots: its progress made in the jumps across its misses
+                share = mo.consecutive if mo.consecutive is not None else np.full(len(r), np.nan)
+                hops = (steady_level[r] > 0) & (share < tc.consecutive_share) & (tc.consecutive_share > 0)
+                # the piece of a line whose detected part moves along it
+                along = confirmation.slide(tracks.motion_wh[r], tracks.motion_ok[r], mo.velocity)
+                along[np.hypot(mo.velocity[:, 0], mo.velocity[:, 1]) < SLIDE_SPEED] = np.nan
+                slides = (steady_level[r] > 0) & (along >= tc.max_slide) & (tc.max_slide > 0)
+                confirm[r[(mo.t2 < motion_level[r]) | ((mo.steady < steady_level[r]) & (steady_level[r] > 0))
+                          | hops | slides]] = False
+                t2[r], steady[r], consecutive[r], sliding[r] = mo.t2, mo.steady, share, along
+            consecutive_level = np.where((steady_level > 0) & (tc.consecutive_share > 0), tc.consecutive_share, 0.0)
+            slide_level = np.where((steady_level > 0) & (tc.max_slide > 0), tc.max_slide, np.inf)
             stats += [Statistic("motion: T²", t2, motion_level, ">=", t2 >= motion_level),
                       Statistic("motion: steady progress", steady, steady_level, ">=",
-                                (steady >= steady_level) | (steady_level <= 0), unit="px")]
+                                (steady >= steady_level) | (steady_level <= 0), unit="px"),
+                      Statistic("motion: consecutive progress", consecutive, consecutive_level, ">=",
+                                ~(consecutive < consecutive_level)),
+                      Statistic("motion: not sliding along a line", sliding, slide_level, "<",
+                                ~(sliding >= slide_level))]
         tie = 1e-9  # a score that reaches a level in exact arithmetic reaches it here too
         drop = ~conf & (s.score <= th.drop + tie)
         lost = conf & (s.score <= th.delete + tie)

@@ -76,6 +76,7 @@ class TrackTable(Columns):
     motion_xy: np.ndarray       #: (N, MOTION_HISTORY, 2) measured positions (scene), oldest first
     motion_ok: np.ndarray       #: (N, MOTION_HISTORY) bool: that slot holds a position
     motion_reg: np.ndarray      #: (N, MOTION_HISTORY) the camera registration's standard error then (px)
+    motion_wh: np.ndarray       #: (N, MOTION_HISTORY, 2) the hit's component's width and height (px; NaN: unknown)
 
     @classmethod
     def blank(cls, n: int) -> TrackTable:
@@ -92,7 +93,7 @@ class TrackTable(Columns):
             innovation=np.full((n, 2), np.nan), clutter=np.zeros(n),
             clutter_known=np.zeros(n, dtype=np.int64), motion_t=np.zeros((n, MOTION_HISTORY)),
             motion_xy=np.zeros((n, MOTION_HISTORY, 2)), motion_ok=np.zeros((n, MOTION_HISTORY), dtype=bool),
-            motion_reg=np.zeros((n, MOTION_HISTORY)))
+            motion_reg=np.zeros((n, MOTION_HISTORY)), motion_wh=np.full((n, MOTION_HISTORY, 2), np.nan))
 
     @property
     def confirmed_ids(self) -> list[int]:
@@ -111,14 +112,17 @@ class TrackTable(Columns):
         self.history[rows, -1] = xy
         self.history_len[rows] = np.minimum(self.history_len[rows] + 1, HISTORY)
 
-    def push_motion(self, rows: np.ndarray, frame: int, scene_xy: np.ndarray, registration: float = 0.0) -> None:
+    def push_motion(self, rows: np.ndarray, frame: int, scene_xy: np.ndarray, registration: float = 0.0,
+                    size: np.ndarray | None = None) -> None:
         """Append measured scene positions ``scene_xy`` of ``rows`` in ``frame``, the camera's
-        registration then known to ``registration`` px (standard error)."""
+        registration then known to ``registration`` px (standard error), and the hits'
+        components' width and height ``size`` (None: unknown)."""
         if not rows.size:
             return
-        for a in (self.motion_t, self.motion_xy, self.motion_ok, self.motion_reg):
+        for a in (self.motion_t, self.motion_xy, self.motion_ok, self.motion_reg, self.motion_wh):
             a[rows, :-1] = a[rows, 1:]
         self.motion_t[rows, -1] = frame
         self.motion_xy[rows, -1] = scene_xy
         self.motion_ok[rows, -1] = True
         self.motion_reg[rows, -1] = registration
+        self.motion_wh[rows, -1] = np.nan if size is None else size

@@ -288,7 +288,7 @@ class FusionTracker:
         self._restart(preds, recovered, velocities, feats)  # before the update: no jump to score
         events = events_pre + mgr.update(
             assoc, Measurements(feats.centre, dets.significance, dets.blobness, dets.change,
-                                density=self.density.at(feats.centre)),
+                                density=self.density.at(feats.centre), size=dets.bbox[:, 2:4]),
             positions=meas, track_density=self.density.at(pred_xy), start=None if is_global else False,
             frame_shape=shape)
         events += [TrackEvent(frame.index, EventKind.RECOVERED, preds[i].track_id,

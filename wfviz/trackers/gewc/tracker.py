@@ -114,7 +114,8 @@ class GEWCTracker:
             track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
-                                self.density.at(dets.xy), dets.linearity, dets.max_linearity),
+                                self.density.at(dets.xy), dets.linearity, dets.max_linearity,
+                                size=dets.bbox[:, 2:4]),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
             gate_k=gate_k, frame_shape=fe.image.shape, track_clutter=track_clutter)
         lap("kalman")
