@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import csv
+import re
 import tomllib
 from collections import defaultdict
 from pathlib import Path
@@ -83,8 +84,9 @@ def test_log_tells_births_confirmations_and_meetings(demo_run):
             col = chunk.to_record_batch().column("TextLog:text").to_pylist()
             texts += [t for row in col for t in (row or [])]
     joined = "\n".join(texts)
-    for word in ("started at", "confirmed after 6 hits", "within the safety distance", "separated"):
+    for word in ("started at", "within the safety distance", "separated"):
         assert word in joined, word
+    assert re.search(r"confirmed after \d+ hits", joined)
 
 
 def test_demo_tracks_every_target_without_identity_swap(demo_run):

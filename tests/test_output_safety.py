@@ -128,17 +128,19 @@ class _FullDisk:
         raise OSError(28, "No space left on device")
 
 
-def test_a_full_disk_names_the_file_and_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch) -> None:
+@pytest.mark.parametrize("extra", [(), ("--backfill",)])
+def test_a_full_disk_names_the_file_and_leaves_nothing(tmp_path: Path, monkeypatch: pytest.MonkeyPatch,
+                                                       extra: tuple[str, ...]) -> None:
     np.save(tmp_path / "c.npy", noise(shape=(6, H, W)))
     real_init = sinks.TracksWriter.__init__
 
-    def init(self, path: Path) -> None:
-        real_init(self, path)
+    def init(self, path: Path, *args: object, **kwargs: object) -> None:
+        real_init(self, path, *args, **kwargs)
         self._fh.close()
         self._fh = _FullDisk()
 
     monkeypatch.setattr(sinks.TracksWriter, "__init__", init)
-    r = invoke("track", str(tmp_path / "c.npy"), "--tracks", str(tmp_path / "t.csv"))
+    r = invoke("track", str(tmp_path / "c.npy"), "--tracks", str(tmp_path / "t.csv"), *extra)
     assert r.exit_code == 2, r.output
     line = [ln for ln in r.output.splitlines() if "error" in ln]
     assert line and f"{tmp_path / 't.csv'}: cannot write (No space left on device)" in line[0]

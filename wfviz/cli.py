@@ -97,6 +97,7 @@ PortOpt = Annotated[int, typer.Option("--port", min=1, max=65535, help="With --s
 TruthOpt = Annotated[Optional[Path], typer.Option("--truth", help="Truth CSV (frame,target_id,x,y): score the run and draw truth in the recording.")]
 GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance to truth in pixels.")]
 ExplainOpt = Annotated[Optional[Path], typer.Option("--explain", help="With --truth: write the cause of every truth point in every frame to this CSV (frame,target_id,cause,detail,significance,det_dist,track_id) and of every false confirmed track point to <stem>-false.csv beside it, and print where Pd went (docs/debugging.md).", show_default=False)]
+BackfillOpt = Annotated[bool, typer.Option("--backfill", help="Report every confirmed track from its first frame: its tentative rows are rewritten as confirmed in the tracks CSV (column backfilled = 1) when the run is complete; for offline analysis (a live system cannot know it yet). With --truth, Pd is printed both ways.")]
 SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
 NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pixels of float frames by 0 instead of stopping.")]
 
@@ -210,7 +211,8 @@ def _live(spawn: bool, connect: str | None, serve: bool, bind: str, port: int):
 def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None, start: int,
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
-             inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None) -> RunSummary:
+             inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None,
+             backfill: bool = False) -> RunSummary:
     if explain is not None and truth is None:
         raise ValueError(f"--explain {explain}: needs truth (--truth FILE)")
     _guard_outputs(recording, tracks, *_explain_files(explain), clip=clip, inputs=inputs)
@@ -237,7 +239,8 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
             progress.update(task, advance=1, fps=count[0] / max(time.perf_counter() - t0, 1e-9))
 
         summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
-                      start=start, stop=stop, truth=truth, gate=gate, explain=explain, on_frame=tick)
+                      start=start, stop=stop, truth=truth, gate=gate, explain=explain, on_frame=tick,
+                      backfill=backfill)
     return summary
 
 
@@ -281,8 +284,12 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None, ex
         out.print(f"  explain:   {display(explain)}, {display(false_path(explain))}{held if signum else ''}",
                   highlight=False, markup=False)
     if summary.scores is not None:
-        from wfviz.evaluate import format_table
+        from wfviz.evaluate import format_backfilled, format_table
         out.print(format_table(summary.scores), highlight=False, markup=False)
+        from wfviz.sinks import BackfilledScores
+        filled = summary.facts.get(BackfilledScores)
+        if filled is not None:
+            out.print(format_backfilled(filled.result), highlight=False, markup=False)
     from wfviz.explain.report import ExplainSummary, format_summary
     why = summary.facts.get(ExplainSummary)
     if why is not None:
@@ -325,6 +332,7 @@ def record(
     serve: ServeOpt = False,
     bind: BindOpt = "127.0.0.1",
     port: PortOpt = 9876,
+    backfill: BackfillOpt = False,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
     live = _live(spawn, connect, serve, bind, port)
@@ -336,7 +344,7 @@ def record(
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
                        truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, exact_every=exact_every,
-                       inputs=_inputs(truth, config), live=live, explain=explain)
+                       inputs=_inputs(truth, config), live=live, explain=explain, backfill=backfill)
     _report(summary, tracks, output, explain)
 
 
@@ -355,6 +363,7 @@ def track(
     explain: ExplainOpt = None,
     skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, counted in the closing summary) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
+    backfill: BackfillOpt = False,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
     if tracks is None and truth is None:
@@ -364,7 +373,7 @@ def track(
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
                        image_every=0, source=str(clip), truth=truth_points, gate=gate, inputs=_inputs(truth, config),
-                       explain=explain)
+                       explain=explain, backfill=backfill)
     _report(summary, tracks, None, explain)
 
 
@@ -450,6 +459,17 @@ def synth(
     out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False, markup=False)
 
 
+def _has_backfilled_rows(tracks: Path) -> bool:
+    """Whether a tracks CSV has a ``backfilled`` column with a 1 in it (``--backfill``)."""
+    import csv
+
+    with open(tracks, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        if "backfilled" not in (reader.fieldnames or []):
+            return False
+        return any((row.get("backfilled") or "").strip() == "1" for row in reader)
+
+
 @app.command("eval")
 @_guarded
 def eval_(
@@ -464,7 +484,7 @@ def eval_(
     """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
     import json
 
-    from wfviz.evaluate import evaluate, format_table
+    from wfviz.evaluate import evaluate, format_backfilled, format_table
 
     if explain is None and (tracks is None or truth is None):
         raise ValueError("eval: give TRACKS and TRUTH (or --explain EXPLAIN.csv)")
@@ -484,6 +504,10 @@ def eval_(
         result = evaluate(tracks, truth, gate=gate, all_rows=all_rows, use_boxes=not no_boxes)
         out.print(format_table(result), highlight=False, markup=False)
         data = result.to_dict()
+        if not all_rows and _has_backfilled_rows(tracks):
+            online = evaluate(tracks, truth, gate=gate, use_boxes=not no_boxes, online=True)
+            out.print(format_backfilled(online, online=True), highlight=False, markup=False)
+            data["online"] = online.to_dict()
     if explain is not None:
         from wfviz.explain.report import format_summary, read_explain
         why = read_explain(explain)

@@ -179,10 +179,11 @@ def _parse(text: str | None, where: str, col: str, kind: str) -> Any:
 
 
 def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = False,
-          sizes: bool = False) -> Truth:
+          sizes: bool = False, unless: str | None = None) -> Truth:
     """Rows with ``flag`` 1 (all rows when the column is absent or ``flag`` is None), rows with 0;
     with ``sizes`` and ``w``, ``h`` columns, the boxes of the rows where they are not empty.
-    ``need_flag``: a missing ``flag`` column is an error. A UTF-8 byte-order mark is accepted."""
+    ``need_flag``: a missing ``flag`` column is an error. ``unless``: a column whose rows with
+    1 count as rows with ``flag`` 0 (absent: none). A UTF-8 byte-order mark is accepted."""
     name, shown, hidden, seen = Path(path).name, defaultdict(list), defaultdict(list), set()
     boxes: Boxes = defaultdict(dict)
     try:
@@ -196,6 +197,7 @@ def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = 
                 raise TruthError(f"{name}:1: no {flag!r} column, so tentative tracks cannot be told from "
                                  f"confirmed ones (--all-rows scores every row as confirmed)")
             use_flag = flag is not None and flag in header
+            use_unless = unless is not None and unless in header
             use_box = sizes and "w" in header and "h" in header
             for row in reader:
                 where = f"{name}:{reader.line_num}"
@@ -207,6 +209,8 @@ def _read(path: Path | str, id_column: str, flag: str | None, need_flag: bool = 
                     raise TruthError(f"{where}: column {id_column!r}: {i} repeated in frame {f}")
                 seen.add((f, i))
                 ok = _parse(row.get(flag), where, flag, "flag") if use_flag else True
+                if ok and use_unless and _parse(row.get(unless), where, unless, "flag"):
+                    ok = False
                 (shown if ok else hidden)[f].append((i, x, y))
                 if use_box and ((row.get("w") or "").strip() or (row.get("h") or "").strip()):
                     boxes[f][i] = _box(row, where)
@@ -395,15 +399,18 @@ def evaluate_points(tracks: Points, truth: Points, gate: float = 3.0,
 
 
 def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows: bool = False,
-             use_boxes: bool = True) -> EvalResult:
+             use_boxes: bool = True, online: bool = False) -> EvalResult:
     """Score a tracks CSV (``confirmed == 1`` rows; every row with ``all_rows``, and a file
     without a ``confirmed`` column only then) against a truth CSV (``visible == 1`` rows),
-    with its boxes unless not ``use_boxes``. A truth file without any row is an error."""
+    with its boxes unless not ``use_boxes``. ``online``: rows with ``backfilled == 1`` (a
+    track's tentative rows rewritten as confirmed, ``--backfill``) count as tentative, the
+    scores a live run had. A truth file without any row is an error."""
     t = read_truth(truth)
     if not t.shown and not t.hidden:
         raise TruthError(f"{Path(truth).name}: no truth rows (only a header, or empty)")
     track_pts = (_read(tracks, "track_id", None) if all_rows
-                 else _read(tracks, "track_id", "confirmed", need_flag=True))[0]
+                 else _read(tracks, "track_id", "confirmed", need_flag=True,
+                            unless="backfilled" if online else None))[0]
     return _evaluate(track_pts, t.shown, t.hidden, gate, t.boxes if use_boxes else {})
 
 
@@ -429,3 +436,18 @@ def format_table(result: EvalResult) -> str:
         lines.append(f"{t.target_id:>6} {t.frames:>6} {t.matched:>7} {num(t.p_d):>6} {num(t.latency, '.0f'):>7} "
                      f"{num(t.main_track, 'd'):>5} {t.id_switches:>5} {num(t.cle_rms):>7}")
     return "\n".join(lines)
+
+
+
+def format_backfilled(result: EvalResult, online: bool = False) -> str:
+    """One line: the scores of the same run the other way, with every confirmed track reported
+    from its first frame (``--backfill``; ``online``: without, as a live run reported them)."""
+    def num(v: float | None, fmt: str = ".3f") -> str:
+        return "-" if v is None or math.isnan(v) else format(v, fmt)
+
+    r = result
+    how = ("online (backfilled rows as tentative)" if online
+           else "with --backfill (confirmed tracks from their first frame)")
+    return (f"{how}: Pd {num(r.pd)} ({num(r.pd_settled)} after each target's first {SETTLE} frames)"
+            f"   MOTA {num(r.mota)}   false alarms/frame {num(r.fa_per_frame)}"
+            f"   mean latency {num(r.latency_mean, '.1f')} frames")

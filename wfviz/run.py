@@ -187,7 +187,7 @@ def open_sinks(openers: Sequence[Callable[[], Sink]]) -> list[Sink]:
 def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recording: Path | None = None,
         recorder_options: RecorderOptions | None = None, start: int = 0, stop: int | None = None,
         truth: tuple[Points, Points] | None = None, gate: float = 3.0, explain: Path | None = None,
-        on_frame: Callable[[Frame, FrameResult], None] | None = None) -> RunSummary:
+        on_frame: Callable[[Frame, FrameResult], None] | None = None, backfill: bool = False) -> RunSummary:
     """Track ``clip`` frames ``start <= index < stop`` with the usual sinks (what ``wfviz
     record``, ``track`` and ``demo`` run): the tracks CSV, the recording, scores against
     ``truth`` (visible, hidden points from :func:`wfviz.evaluate.read_truth`, or a synthetic
@@ -195,6 +195,9 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     tracks (:mod:`wfviz.explain`) go to the recording, to ``explain`` (``EXPLAIN.csv`` and
     ``EXPLAIN-false.csv``) and, summarised, to the summary's facts (an
     :class:`~wfviz.explain.report.ExplainSummary`); without truth nothing is computed.
+    ``backfill``: the tracks CSV reports every confirmed track from its first frame
+    (:class:`~wfviz.sinks.TracksWriter`), and with truth the facts hold those scores too
+    (:class:`~wfviz.sinks.BackfilledScores`).
 
     Outputs are written to unique temporary files beside them
     (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends; on a signal the frames
@@ -211,12 +214,12 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
             check_writable(p)
     openers: list[Callable[[], Sink]] = []
     if truth is not None:
-        openers.append(lambda: ScoreSink(truth, gate))
+        openers.append(lambda: ScoreSink(truth, gate, backfill=backfill))
         from wfviz.explain.sink import ExplainSink
 
         openers.append(lambda: ExplainSink(truth, gate, tracker.name, tracker.config, explain))
     if tracks_csv is not None:
-        openers.append(lambda: TracksSink(tracks_csv))
+        openers.append(lambda: TracksSink(tracks_csv, backfill=backfill))
     if recording is not None:
         openers.append(lambda: RecordingSink(recording, tracker.name, clip, recorder_options))
     if on_frame is not None:

@@ -121,25 +121,66 @@ def confirmed_points(result: FrameResult) -> list[Point]:
 
 class TracksWriter(TextOutput):
     """Tracks CSV: ``frame,track_id,x,y,confirmed,vx,vy,meeting``, one row per live track,
-    written to a unique temporary file and renamed to ``path`` by :meth:`close`."""
+    written to a unique temporary file and renamed to ``path`` by :meth:`close`.
 
-    def __init__(self, path: Path) -> None:
-        super().__init__(path, ",".join(TRACKS_HEADER))
+    ``backfill``: a column ``backfilled`` more, and when the run is complete the rows a track
+    wrote while tentative are rewritten as confirmed (``backfilled`` 1) if it was confirmed
+    later: a confirmed track reported from its first frame, for the offline analysis of a
+    recorded clip (a live system cannot know it yet). The rows are streamed through a second
+    temporary file at :meth:`close`; only the confirmed tracks' ids are kept meanwhile."""
+
+    def __init__(self, path: Path, backfill: bool = False) -> None:
+        super().__init__(path, ",".join(TRACKS_HEADER + (["backfilled"] if backfill else [])))
+        self.backfill = backfill
+        self.confirmed: set[int] = set()  # ids of the tracks confirmed so far
+        self.backfilled = 0  # rows rewritten by close()
 
     def write_tracks(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
         """Append the rows of one frame."""
+        end = ",0\r\n" if self.backfill else "\r\n"
         self.write("".join(
-            f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}\r\n"
+            f"{frame},{t.track_id},{t.x:.3f},{t.y:.3f},{t.confirmed:d},{t.vx:.3f},{t.vy:.3f},{t.meeting:d}{end}"
             for t in tracks))  # the csv module's dialect (\r\n), plain numbers need no quoting
+        if self.backfill:
+            self.confirmed.update(t.track_id for t in tracks if t.confirmed)
+
+    def close(self) -> None:
+        """Flush, rewrite the backfilled rows (``backfill``), rename into place."""
+        if not self.backfill:
+            super().close()
+            return
+        try:
+            self._fh.close()
+            final = temp_path(self.path)
+            try:
+                with open(self.temp, newline="", encoding="utf-8") as src, \
+                        open(final, "w", newline="", encoding="utf-8") as dst:
+                    dst.write(src.readline())
+                    for line in src:
+                        f = line.split(",", 5)
+                        if f[4] == "0" and int(f[1]) in self.confirmed:
+                            rest = f[5].rsplit(",", 1)[0]
+                            line = f"{f[0]},{f[1]},{f[2]},{f[3]},1,{rest},1\r\n"
+                            self.backfilled += 1
+                        dst.write(line)
+            except BaseException:
+                final.unlink(missing_ok=True)
+                raise
+        except OSError as exc:
+            raise OutputError(f"{self.path}: cannot write ({exc.strerror or exc})") from None
+        self.temp.unlink(missing_ok=True)
+        self.temp = final
+        replace_into(final, self.path)
 
 
 class TracksSink(BaseSink):
     """The tracks CSV (``frame,track_id,x,y,confirmed``) of run ``run``, written to a temporary
-    name and renamed into place when the run finishes."""
+    name and renamed into place when the run finishes (``backfill``: :class:`TracksWriter`)."""
 
-    def __init__(self, path: Path, run: int = 0) -> None:
-        self.writer: TracksWriter | None = TracksWriter(path)
+    def __init__(self, path: Path, run: int = 0, backfill: bool = False) -> None:
+        self.writer: TracksWriter | None = TracksWriter(path, backfill)
         self.run = run
+        self.backfilled = 0  # rows rewritten as confirmed, once finished
 
     def step(self, step: Step) -> None:
         assert self.writer is not None
@@ -148,6 +189,7 @@ class TracksSink(BaseSink):
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:
             self.writer.close()
+            self.backfilled = self.writer.backfilled
             self.writer = None  # complete: an abort later (another sink failing) keeps it
 
     def abort(self) -> None:
@@ -172,33 +214,52 @@ class FrameTruth:
         return frame_errors(self.points, self.shown, self.gate, self.hidden, self.boxes)
 
 
+@dataclass(frozen=True)
+class BackfilledScores:
+    """A run's scores with every confirmed track reported from its first frame (its tentative
+    rows counted as confirmed: ``--backfill``), besides the online ones."""
+
+    result: EvalResult
+
+
 class ScoreSink(BaseSink):
     """Scores of run ``run`` against truth (visible, hidden points; a :class:`~wfviz.evaluate.Truth`
     brings its boxes) over the frames processed: publishes each frame's :class:`FrameTruth` and,
-    at the end, the :class:`EvalResult` (``scores`` is set then too)."""
+    at the end, the :class:`EvalResult` (``scores`` is set then too) and, with ``backfill``, the
+    :class:`BackfilledScores`."""
 
-    def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0) -> None:
+    def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0, backfill: bool = False) -> None:
         self.shown, self.hidden = truth
         self.boxes = Truth.of(truth).boxes
         self.gate = gate
         self.run = run
+        self.backfill = backfill
         self.tracked: Points = {}
+        self.tentative: Points = {}  # with backfill: the tentative tracks' points
         self.scores: EvalResult | None = None
 
     def publish(self, step: Step) -> None:
         f = step.frame.index
         points = confirmed_points(step.results[self.run])
         self.tracked[f] = points
+        if self.backfill:
+            self.tentative[f] = [(t.track_id, t.x, t.y) for t in step.results[self.run].tracks if not t.confirmed]
         step.facts.put(FrameTruth(self.shown.get(f, []), self.hidden.get(f, []), points, self.gate,
                                   self.boxes.get(f)), self.run)
 
     def conclude(self, end: RunEnd) -> None:
         if self.tracked:
             span = set(self.tracked)
-            self.scores = evaluate_points(self.tracked, {f: v for f, v in self.shown.items() if f in span},
-                                          self.gate, {f: v for f, v in self.hidden.items() if f in span},
-                                          self.boxes)
+            shown = {f: v for f, v in self.shown.items() if f in span}
+            hidden = {f: v for f, v in self.hidden.items() if f in span}
+            self.scores = evaluate_points(self.tracked, shown, self.gate, hidden, self.boxes)
             end.facts.put(self.scores, self.run)
+            if self.backfill:
+                ever = {i for pts in self.tracked.values() for i, _, _ in pts}
+                full = {f: pts + [p for p in self.tentative.get(f, []) if p[0] in ever]
+                        for f, pts in self.tracked.items()}
+                end.facts.put(BackfilledScores(evaluate_points(full, shown, self.gate, hidden, self.boxes)),
+                              self.run)
 
 
 class RecordingSink(BaseSink):

@@ -163,7 +163,7 @@ class CameraMotion:
     def _measure(self, g: np.ndarray, image: np.ndarray, before: np.ndarray) -> CameraState:
         """This frame's state from the key frame (module docstring)."""
         agreed = 0
-        if self._key_pts is not None and len(self._key_pts) >= self.min_corners:
+        if self._key is not None and self._key_pts is not None and len(self._key_pts) >= self.min_corners:
             win = (FLOW_WINDOW, FLOW_WINDOW)
             p1, st, _ = cv2.calcOpticalFlowPyrLK(self._key, g, self._key_pts, None, winSize=win, maxLevel=FLOW_LEVELS)
             p0, st2, _ = cv2.calcOpticalFlowPyrLK(g, self._key, p1, None, winSize=win, maxLevel=FLOW_LEVELS)
