@@ -115,8 +115,9 @@ def load_with(tracker: str, config: str | None, settings: list[str]):
 
 
 def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = (),
-            patches: list[str] = ()) -> dict:
-    """Track one clip in-process and score it (confirmed tracks, the group's gate)."""
+            patches: list[str] = (), backfill: bool = False) -> dict:
+    """Track one clip in-process and score it (confirmed tracks, the group's gate; ``backfill``:
+    every confirmed track from its first frame, as ``--backfill`` reports it)."""
     import numpy as np
 
     import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
@@ -145,8 +146,14 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
 
     t0 = time.perf_counter()
     summary = run(clip, load_with(tracker, config, list(settings)), truth=truth, gate=GATES[job.group],
-                  stop=job.stop, on_frame=outside)
+                  stop=job.stop, on_frame=outside, backfill=backfill)
     s = summary.scores
+    if backfill:
+        from wfviz.sinks import BackfilledScores
+
+        filled = summary.facts.get(BackfilledScores)
+        assert filled is not None
+        s = filled.result
 
     def num(v: float) -> float | None:
         return None if v is None or not math.isfinite(v) else float(v)
@@ -219,13 +226,16 @@ def main() -> None:
     ap.add_argument("--patch", nargs="+", default=[], metavar="MODULE.NAME=VALUE",
                     help="module constants, for ablations")
     ap.add_argument("--write", action="store_true", help="write the table into docs/accuracy.md")
+    ap.add_argument("--backfill", action="store_true",
+                    help="score every confirmed track from its first frame (wfviz --backfill: offline)")
     args = ap.parse_args()
     todo = jobs(args.groups, args.tracker, args.seeds, args.long_frames, args.half, args.only)
     if not todo:
         sys.exit("nothing to run (is ../shared/data there?)")
     t0 = time.perf_counter()
     with ProcessPoolExecutor(max_workers=max(1, args.jobs)) as pool:
-        futures = [pool.submit(run_job, j, args.tracker, args.config, args.set, args.patch) for j in todo]
+        futures = [pool.submit(run_job, j, args.tracker, args.config, args.set, args.patch, args.backfill)
+                   for j in todo]
         results = []
         for f in futures:
             r = f.result()
