@@ -104,6 +104,8 @@ class DetectionConfig:
     # that carries on along a line or an edge) exceeds this is line-like: it starts no track and
     # its hits count as static clutter (not in the paper); 1: off
     max_linearity: float = field(default=0.45, metadata=value_range(0.0, 1.0))
+    multi_memory: float = field(default=0.85, metadata=value_range(0.0, 0.99))
+    multi_clip: float = field(default=3.0, metadata=value_range(0.5, 20.0))
     # confirmed tracks' gates are searched beyond the search region too, below the horizon
     # (false: inside the search region only, the rule before; an ablation, docs/accuracy.md)
     gates_cross_horizon: bool = True

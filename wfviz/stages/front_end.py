@@ -42,10 +42,13 @@ from wfviz.stages.defects import BadPixels
 from wfviz.stages.detection import Detections, detect, sample_at, score_detections, typical_threshold
 from wfviz.stages.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.stages.imaging_circle import ImagingCircle, ImagingMask
+from wfviz.stages.multiframe import MotionIntegrator
 from wfviz.stages.noise import NoiseEstimate, NoiseModel, TailCalibration
 from wfviz.stages.registration import CameraMotion, CameraState
 
 #: a box of the frame: (rows, columns)
+_PEAK = np.ones((5, 5), np.uint8)
+WARM_UP = 4  # frames of multi-frame score before it is used
 Box = tuple[slice, slice]
 
 
@@ -167,6 +170,11 @@ class Preparer:
         self._change_scale: np.ndarray | None = None  # 1 / (spread x tail factor) of the change
         self._frame = 0
         self._gain: float | None = None  # of the change (automatic gain control)
+        self.multi = MotionIntegrator(c.detection.multi_memory, c.detection.multi_clip) \
+            if cfar and c.detection.multi_memory > 0 else None
+        self.multi_noise = NoiseModel(c.noise.tile, c.noise.smoothing) if self.multi is not None else None
+        self.multi_tail = TailCalibration(c.noise.tile, refresh=c.noise.every)
+        self._multi: tuple[np.ndarray, np.ndarray] | None = None  # level, 1 / (sigma x tail factor)
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -254,6 +262,35 @@ class Preparer:
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
+        """The change significance (:meth:`_scene_change`), with the multi-frame evidence
+        (:class:`wfviz.stages.multiframe.MotionIntegrator`, standardised like it) where larger."""
+        change = self._scene_change(raw, img, suppressed, camera, learn_spread)
+        if self.multi is None:
+            return change
+        if change is None:
+            self.multi.forget()
+            return None
+        a = self.multi.update(change, camera.shift if camera is not None else (0.0, 0.0))
+        known = self._region.view(np.uint8)
+        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(a, mask=known))
+        if learn_spread or self._multi is None or self.multi.frames <= WARM_UP:
+            assert self.multi_noise is not None
+            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a,
+                                          reset=self.multi.frames <= WARM_UP)
+            z = est.significance(a)
+            factor = self.multi_tail.update(z, self._region, overall=self.config.noise.change_floor_overall)
+            self._multi = (est.level, cv2.divide(1.0, cv2.multiply(est.sigma, factor)), mean, std)
+        if self.multi.frames < WARM_UP:
+            return change
+        level, scale, mean0, std0 = self._multi
+        # the score's level and spread drift as its memory fills: follow them between calibrations
+        z = cv2.multiply(cv2.subtract(a, level + np.float32(mean - mean0)), scale * np.float32(std0 / max(std, 1e-6)))
+        # only the head of a path: its trail behind (each step lower by λ) is not a target
+        z[z < cv2.dilate(z, _PEAK)] = np.nan
+        return np.fmax(change, z)
+
+    def _scene_change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
+                      camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
         """Change significance of every pixel (:class:`wfviz.stages.background.TemporalBackground`):
         the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
         clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's
