@@ -24,7 +24,8 @@ class Detections:
     :func:`blobness`); ``change`` the largest change significance among its pixels
     (:func:`detect`, NaN where unknown); ``linearity`` how much of it is part of a line or an
     edge (:func:`linearity`, 0..1) and ``max_linearity`` the level above which it is
-    :meth:`line_like` (``detection.max_linearity``).
+    :meth:`line_like` (``detection.max_linearity``); ``multiframe`` the largest multi-frame
+    significance among its pixels (:func:`detect`, NaN where none).
     """
 
     xy: np.ndarray
@@ -41,6 +42,7 @@ class Detections:
     change: np.ndarray | None = None
     linearity: np.ndarray | None = None
     max_linearity: float = 1.0
+    multiframe: np.ndarray | None = None
 
     def __len__(self) -> int:
         return int(self.xy.shape[0])
@@ -49,7 +51,7 @@ class Detections:
         """The detections where ``keep`` (bool, N) holds, same label image and thresholds."""
         k = np.asarray(keep, dtype=bool)
         opt = {f: (None if getattr(self, f) is None else getattr(self, f)[k])
-               for f in ("significance", "blobness", "change", "linearity")}
+               for f in ("significance", "blobness", "change", "linearity", "multiframe")}
         return Detections(self.xy[k], self.area[k], self.peak[k], self.flux[k], self.bbox[k],
                           self.component[k], self.labels, self.threshold, self.threshold_map, **opt,
                           max_linearity=self.max_linearity)
@@ -285,7 +287,8 @@ def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
 
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
            zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None,
-           change: np.ndarray | None = None, k_map: np.ndarray | None = None) -> Detections:
+           change: np.ndarray | None = None, k_map: np.ndarray | None = None,
+           multi: np.ndarray | None = None) -> Detections:
     """Threshold ``residual`` inside ``region`` and label 8-connected components.
 
     ``cfg.mode``: "cfar" thresholds at ``level + k_sigma · sigma`` of the local ``noise``
@@ -301,6 +304,13 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     the larger of the two exceeds ``k_sigma``. ``k_map`` (cfar only; float32, the frame's
     shape): the threshold in σ of every pixel instead of ``k_sigma`` (lower in the gates of
     confirmed tracks, :func:`wfviz.tracking.confirmation.gate_threshold`).
+
+    ``multi`` (cfar only, with ``change``): the multi-frame significance (NaN where no path ends,
+    :mod:`wfviz.stages.multiframe`): its pixels above the threshold are detected too, and
+    weigh in the centroid like the others, but a component's significance and change stay
+    this frame's own (below the threshold for a component only the multi-frame evidence
+    found: the tracks score each frame's own evidence, never the integrated one twice); its
+    ``multiframe`` is the largest multi-frame significance among its pixels.
     """
     res = residual
     z_of = None  # (level, sigma) maps when significance comes from the noise estimate
@@ -338,6 +348,8 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         binary = cv2.compare(excess, 0.0, cv2.CMP_GT)
         if change is not None:  # NaN compares false
             binary |= cv2.compare(change, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
+            if multi is not None:
+                binary |= cv2.compare(multi, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
         binary &= np.asarray(region, dtype=bool).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
@@ -351,13 +363,17 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     lab = labels.ravel()[idx]
     raw = res.ravel()[idx].astype(np.float32)
     val = raw - np.float32(thr) if excess is None else excess.ravel()[idx]
-    zval = zc = None
+    zval = zc = zm = None
     if z_of is not None:
         zval = ((raw - z_of[0].ravel()[idx]) / z_of[1].ravel()[idx]).astype(np.float64)
         if change is not None:
             zc = np.nan_to_num(change.ravel()[idx].astype(np.float64), nan=-np.inf)
             k_here = cfg.k_sigma if k_map is None else k_map.ravel()[idx]
-            val = (np.maximum(zval, zc) - k_here).astype(np.float32)
+            best = np.maximum(zval, zc)
+            if multi is not None:
+                zm = np.nan_to_num(multi.ravel()[idx].astype(np.float64), nan=-np.inf)
+                best = np.maximum(best, zm)
+            val = (best - k_here).astype(np.float32)
     w = residual.shape[1]
     ix, iy = idx % w, idx // w
     stats = _component_stats(lab, ix, iy, n)
@@ -370,7 +386,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     peak = np.zeros(n)
     np.maximum.at(peak, lab, raw)
     peak = peak[1:]
-    sig = changed = None
+    sig = changed = multiple = None
     if zval is not None:  # significance of each component: its largest (r - level) / sigma
         sig = np.full(n, -np.inf)
         np.maximum.at(sig, lab, zval if zc is None else np.maximum(zval, zc))
@@ -379,6 +395,10 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
             changed = np.full(n, -np.inf)
             np.maximum.at(changed, lab, zc)
             changed = np.where(np.isfinite(changed[1:]), changed[1:], np.nan)
+        if zm is not None:
+            multiple = np.full(n, -np.inf)
+            np.maximum.at(multiple, lab, zm)
+            multiple = np.where(np.isfinite(multiple[1:]), multiple[1:], np.nan)
     area = stats[1:, cv2.CC_STAT_AREA]
     keep = np.nonzero((area >= cfg.min_area) & (area <= cfg.max_area))[0]
     rank = peak if sig is None else sig
@@ -396,6 +416,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         threshold_map=thr_map,
         significance=None if sig is None else sig[keep],
         change=None if changed is None else changed[keep],
+        multiframe=None if multiple is None else multiple[keep],
     )
 
 

@@ -47,9 +47,10 @@ from wfviz.stages.noise import NoiseEstimate, NoiseModel, TailCalibration
 from wfviz.stages.registration import CameraMotion, CameraState
 
 #: a box of the frame: (rows, columns)
-_PEAK = np.ones((5, 5), np.uint8)
-WARM_UP = 4  # frames of multi-frame score before it is used
 Box = tuple[slice, slice]
+#: frames the multi-frame score integrates after it (re)starts before it is used
+WARM_UP = 4
+_PEAK = np.ones((5, 5), np.uint8)  # a path's head is the largest score within 2 px
 
 
 class FrontEndConfig(Protocol):
@@ -88,6 +89,7 @@ class PreparedFrame:
     change: np.ndarray | None
     bad_pixels: np.ndarray
     bad_pixels_changed: bool
+    multiframe: np.ndarray | None = None
 
 
 @dataclass(frozen=True, kw_only=True)
@@ -102,7 +104,9 @@ class FrontEndResult(PreparedFrame):
     ``camera``: the camera's motion (None: not compensated); ``offset``: the camera's (scene
     point s is at s + offset); ``suppressed``: the background-suppressed residual; ``noise``:
     its local level and σ (None outside "cfar" detection); ``change``: the change significance
-    of every pixel (None on the first frame); ``bad_pixels``: the flagged defects (row, col).
+    of every pixel (None on the first frame); ``bad_pixels``: the flagged defects (row, col);
+    ``multiframe``: the multi-frame significance where a path of the change ends (NaN elsewhere;
+    None: not computed, :mod:`wfviz.stages.multiframe`).
     """
 
     detections: Detections
@@ -218,7 +222,7 @@ class Preparer:
         lap("camera")
         suppressed = suppress_background(img, c.suppression.size, c.suppression.method)
         lap("suppress")
-        noise = change = None
+        noise = change = multiframe = None
         self._frame += 1
         moved = camera is not None and float(np.hypot(*camera.shift)) > c.noise.tile / 4
         due = moved or mask_changed or horizon_updated or (self._frame - 1) % c.noise.every == 0
@@ -234,6 +238,8 @@ class Preparer:
             if change is not None and len(self.bad.flagged):
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
+            multiframe = self._multiframe(change, camera, whole and due)
+            lap("multiframe")
             # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
             bad_changed = self.bad.update(raw, typical_threshold(noise, c.defects.k_sigma))
             lap("defects")
@@ -241,7 +247,7 @@ class Preparer:
                              circle=self.circle, horizon=horizon, horizon_updated=horizon_updated,
                              region=self._region, zones=self._zones, camera=camera,
                              offset=self._offset.copy(), suppressed=suppressed, noise=noise, change=change,
-                             bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed)
+                             multiframe=multiframe, bad_pixels=self.bad.flagged, bad_pixels_changed=bad_changed)
 
     def flag_defects(self, raw: np.ndarray, threshold: float) -> tuple[np.ndarray, bool]:
         """The defect stage's evidence of this frame at the detection's ``threshold`` (global or
@@ -260,37 +266,39 @@ class Preparer:
         self._noise = replace(est, sigma=est.sigma * g)
         return self._noise
 
-    def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
-                camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
-        """The change significance (:meth:`_scene_change`), with the multi-frame evidence
-        (:class:`wfviz.stages.multiframe.MotionIntegrator`, standardised like it) where larger."""
-        change = self._scene_change(raw, img, suppressed, camera, learn_spread)
+    def _multiframe(self, change: np.ndarray | None, camera: CameraState | None,
+                    learn_spread: bool) -> np.ndarray | None:
+        """The multi-frame significance of every pixel where a path of the change significance
+        ends (:class:`wfviz.stages.multiframe.MotionIntegrator`), standardised like a
+        significance (local level and σ, tail calibration; re-estimated when ``learn_spread``,
+        and every frame while its memory fills, the region's mean and spread followed between
+        estimates), NaN elsewhere and where the score is not the largest within 2 px (the trail
+        behind a path's head, each step lower by λ, is not a target). None when there is no
+        change image, and for the first :data:`WARM_UP` frames after the integration (re)starts."""
         if self.multi is None:
-            return change
+            return None
         if change is None:
             self.multi.forget()
             return None
         a = self.multi.update(change, camera.shift if camera is not None else (0.0, 0.0))
-        known = self._region.view(np.uint8)
-        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(a, mask=known))
-        if learn_spread or self._multi is None or self.multi.frames <= WARM_UP:
+        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(a, mask=self._region.view(np.uint8)))
+        young = self.multi.frames <= WARM_UP
+        if learn_spread or self._multi is None or young:
             assert self.multi_noise is not None
-            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a,
-                                          reset=self.multi.frames <= WARM_UP)
-            z = est.significance(a)
-            factor = self.multi_tail.update(z, self._region, overall=self.config.noise.change_floor_overall)
+            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a, reset=young)
+            factor = self.multi_tail.update(est.significance(a), self._region,
+                                            overall=self.config.noise.change_floor_overall)
             self._multi = (est.level, cv2.divide(1.0, cv2.multiply(est.sigma, factor)), mean, std)
         if self.multi.frames < WARM_UP:
-            return change
+            return None
         level, scale, mean0, std0 = self._multi
-        # the score's level and spread drift as its memory fills: follow them between calibrations
         z = cv2.multiply(cv2.subtract(a, level + np.float32(mean - mean0)), scale * np.float32(std0 / max(std, 1e-6)))
-        # only the head of a path: its trail behind (each step lower by λ) is not a target
         z[z < cv2.dilate(z, _PEAK)] = np.nan
-        return np.fmax(change, z)
+        z[~self._region] = np.nan
+        return z
 
-    def _scene_change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
-                      camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
+    def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
+                camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:
         """Change significance of every pixel (:class:`wfviz.stages.background.TemporalBackground`):
         the raw frame's residual (defects not yet replaced, so that a pixel flagged during the
         clip does not look like a change), smoothed by a Gaussian of 1 px (a sharp spot's
@@ -393,10 +401,10 @@ class FrontEnd:
             # a global or box threshold is a statistic of the whole search region, not of the
             # windows (whose own statistics a bright target inflates): detect there, keep the
             # candidates inside the windows
-            dets = detect(p.suppressed, full, c.detection, p.zones, noise, p.change, kmap)
+            dets = detect(p.suppressed, full, c.detection, p.zones, noise, p.change, kmap, p.multiframe)
             dets = dets.subset(sample_at(windows, dets.xy))
         else:
-            dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap)
+            dets = detect(p.suppressed, region, c.detection, p.zones, noise, p.change, kmap, p.multiframe)
         dets = score_detections(dets, p.image, full, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0, p.suppressed)
         bad_pixels, bad_changed = p.bad_pixels, p.bad_pixels_changed
@@ -419,7 +427,8 @@ class FrontEnd:
             lap("noise")
         boxes = gates if c.detection.gates_cross_horizon else ()
         region = _with_boxes(stages.region, boxes, result.valid)
-        dets = detect(result.suppressed, region, c.detection, stages.zones, noise, result.change)
+        dets = detect(result.suppressed, region, c.detection, stages.zones, noise, result.change,
+                      multi=result.multiframe)
         dets = score_detections(dets, result.image, region, c.detection, self._significance,
                                 c.tracking.confirm_blobness > 0, result.suppressed)
         lap("detect")
