@@ -110,33 +110,6 @@ def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
     return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
 
 
-#: the least mean significance a frame of a target below the single-frame threshold is taken to
-#: have (σ): what the multi-frame stage can find (a DP score of memory 1/(1 − λ), λ = 0.85, reaches
-#: k = 4 for a mean of k·√((1 − λ)/(1 + λ)) ≈ 1.1 a frame)
-SUBTHRESHOLD_LOW = 1.0
-
-
-def subthreshold_score(z: np.ndarray, k: float | np.ndarray, low: float = SUBTHRESHOLD_LOW,
-                       cap: float = EVIDENCE_CAP) -> np.ndarray:
-    """ln of the likelihood ratio of a significance z measured where no threshold was crossed
-    (a hit the multi-frame stage found, :mod:`wfviz.stages.multiframe`): a target's is Gaussian
-    about a mean uniform in [``low``, ``k``] (a target this dim was not detected on its own),
-    noise's a unit Gaussian about 0, unconditioned:
-    ln[(Φ(k − z) − Φ(low − z)) √(2π) e^{z²/2} / (k − low)]. About −2 at z = 0, +1.6 at 2, +4 at 3;
-    bounded to ±``cap``. NaN: 0."""
-    from scipy.special import log_ndtr
-
-    z = np.asarray(z, dtype=np.float64)
-    k = np.broadcast_to(np.asarray(k, dtype=np.float64), z.shape)
-    ok = np.isfinite(z)
-    zz = np.where(ok, z, 0.0)
-    hi, lo = log_ndtr(k - zz), log_ndtr(low - zz)
-    with np.errstate(divide="ignore", invalid="ignore"):
-        band = hi + np.log1p(-np.exp(np.minimum(lo - hi, 0.0)))  # ln(Φ(k - z) - Φ(low - z))
-        out = 0.5 * zz * zz + 0.5 * math.log(2 * math.pi) + band - np.log(np.maximum(k - low, 1e-9))
-    return np.where(ok, np.clip(np.nan_to_num(out, nan=-cap, neginf=-cap), -cap, cap), 0.0)
-
-
 def change_evidence(z_change: np.ndarray, threshold: float, q_static: float, q_target: float) -> np.ndarray:
     """ln of the likelihood ratio that a hit's change significance gives against static clutter,
     in Wald's form for a yes/no observation: the hit has *changed* when its change significance

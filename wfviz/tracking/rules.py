@@ -250,10 +250,13 @@ class SequentialRule(Rule):
         new.score[:] = confirmation.score_change(np.ones(k, dtype=bool), tc.p_detect, p_fa)
         if births.significance is not None:
             zb = np.asarray(births.significance, dtype=np.float64)
-            new.score += self._amplitude(zb, np.full(k, self.detection_threshold))
+            below = self._below(zb, np.full(k, self.detection_threshold))
+            new.score += confirmation.amplitude_score(zb, self.detection_threshold)
+            new.score[below] = 0.0  # born of the multi-frame stage: no evidence yet (decide)
             if births.novelty is not None:
                 nov = np.asarray(births.novelty, dtype=np.float64)
-                new.clutter_hits[:, -1] = self._newness(zb, nov, np.full(k, self.detection_threshold))
+                new.clutter_hits[:, -1] = np.where(below, 0.0, confirmation.change_evidence(
+                    nov, self.detection_threshold, tc.static_change_rate, tc.target_change_rate))
                 new.clutter_score[:] = new.clutter_hits[:, -1]
         self.stats.append(new)
 
@@ -262,23 +265,6 @@ class SequentialRule(Rule):
         """Hits whose own significance is below their threshold: found by the multi-frame stage
         only (:func:`wfviz.stages.detection.detect`)."""
         return np.isfinite(z) & (z < k - 1e-9)
-
-    def _amplitude(self, z: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """Each hit's significance evidence (target vs noise): above its threshold
-        :func:`~wfviz.tracking.confirmation.amplitude_score`, below it (a multi-frame hit)
-        :func:`~wfviz.tracking.confirmation.subthreshold_score` of this frame's own value."""
-        below = self._below(z, k)
-        return np.where(below, confirmation.subthreshold_score(z, k), confirmation.amplitude_score(z, k))
-
-    def _newness(self, z: np.ndarray, novelty: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """Each hit's change evidence (target vs static clutter): new at its place or not
-        (:func:`~wfviz.tracking.confirmation.change_evidence`), or for a multi-frame hit the
-        likelihood ratio of this frame's own change significance
-        (:func:`~wfviz.tracking.confirmation.subthreshold_score`: static clutter's change is noise)."""
-        tc = self.tcfg
-        binary = confirmation.change_evidence(novelty, self.detection_threshold, tc.static_change_rate,
-                                              tc.target_change_rate)
-        return np.where(self._below(z, k), confirmation.subthreshold_score(novelty, k), binary)
 
     def min_hits(self, levels: confirmation.Thresholds | None) -> int:
         """The "not clutter" test gains at most ln(target_change_rate / static_change_rate) per
@@ -322,8 +308,14 @@ class SequentialRule(Rule):
         line = e.line_hits()
         if m.size:
             change[m] += confirmation.position_score(tracks.innovation[m], e.S_inv[m], halves[m])
-            change[m] += self._amplitude(z[m], k_gate[m])
-            clutter[m] = self._newness(z[m], nov[m], k_gate[m])
+            change[m] += confirmation.amplitude_score(z[m], k_gate[m])
+            clutter[m] = confirmation.change_evidence(nov[m], self.detection_threshold,
+                                                     tc.static_change_rate, tc.target_change_rate)
+            # a hit only the multi-frame stage found carries no evidence of its own (its score
+            # shares its history with the last frames'): it keeps the track on its target
+            below = m[self._below(z[m], k_gate[m])]
+            change[below] = 0.0
+            clutter[below] = 0.0
             # a tentative track's line-like hit is evidence for clutter: it counts as unchanged
             clutter[line & ~tracks.confirmed] = math.log((1.0 - tc.target_change_rate)
                                                          / (1.0 - tc.static_change_rate))
