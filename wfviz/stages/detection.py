@@ -285,6 +285,25 @@ def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
     return float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
 
 
+def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray) -> np.ndarray:
+    """uint8 mask (1) of the pixels of ``region`` where ``multi`` (a multi-frame significance)
+    exceeds ``k`` (σ; a number or a per-pixel map) and is the largest within 2 px: the head of a
+    path, not its trail (each step behind it lower by the integrator's λ)."""
+    above = cv2.compare(multi, k, cv2.CMP_GT)
+    above &= np.asarray(region, dtype=bool).view(np.uint8)
+    idx = np.flatnonzero(above.view(bool))  # 0/1: numpy's fast path for bool
+    if len(idx):
+        h, w = multi.shape
+        r, c = idx // w, idx % w
+        d = np.arange(-2, 3)
+        rr = np.clip(r[:, None, None] + d[None, :, None], 0, h - 1)
+        cc = np.clip(c[:, None, None] + d[None, None, :], 0, w - 1)
+        best = multi[rr, cc].reshape(len(idx), -1).max(axis=1)
+        lower = idx[multi.ravel()[idx] < best]
+        above.ravel()[lower] = 0
+    return above
+
+
 def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
            zones: list[np.ndarray] | None = None, noise: NoiseEstimate | None = None,
            change: np.ndarray | None = None, k_map: np.ndarray | None = None,
@@ -305,8 +324,9 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
     shape): the threshold in σ of every pixel instead of ``k_sigma`` (lower in the gates of
     confirmed tracks, :func:`wfviz.tracking.confirmation.gate_threshold`).
 
-    ``multi`` (cfar only, with ``change``): the multi-frame significance (NaN where no path ends,
-    :mod:`wfviz.stages.multiframe`): its pixels above the threshold are detected too, and
+    ``multi`` (cfar only, with ``change``): the multi-frame significance
+    (:mod:`wfviz.stages.multiframe`): its path heads above the threshold (:func:`path_heads`)
+    are detected too, and
     weigh in the centroid like the others, but a component's significance and change stay
     this frame's own (below the threshold for a component only the multi-frame evidence
     found: the tracks score each frame's own evidence, never the integrated one twice); its
@@ -349,7 +369,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         if change is not None:  # NaN compares false
             binary |= cv2.compare(change, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
             if multi is not None:
-                binary |= cv2.compare(multi, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
+                binary |= path_heads(multi, float(cfg.k_sigma) if k_map is None else k_map, region)
         binary &= np.asarray(region, dtype=bool).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component

@@ -50,7 +50,8 @@ from wfviz.stages.registration import CameraMotion, CameraState
 Box = tuple[slice, slice]
 #: frames the multi-frame score integrates after it (re)starts before it is used
 WARM_UP = 4
-_PEAK = np.ones((5, 5), np.uint8)  # a path's head is the largest score within 2 px
+#: frames between the multi-frame score's full standardisations (its drift is followed in between)
+CALIBRATE = 8
 
 
 class FrontEndConfig(Protocol):
@@ -268,34 +269,34 @@ class Preparer:
 
     def _multiframe(self, change: np.ndarray | None, camera: CameraState | None,
                     learn_spread: bool) -> np.ndarray | None:
-        """The multi-frame significance of every pixel where a path of the change significance
-        ends (:class:`wfviz.stages.multiframe.MotionIntegrator`), standardised like a
-        significance (local level and σ, tail calibration; re-estimated when ``learn_spread``,
-        and every frame while its memory fills, the region's mean and spread followed between
-        estimates), NaN elsewhere and where the score is not the largest within 2 px (the trail
-        behind a path's head, each step lower by λ, is not a target). None when there is no
-        change image, and for the first :data:`WARM_UP` frames after the integration (re)starts."""
+        """The multi-frame significance of every pixel: the score of the best path of the change
+        significance ending there (:class:`wfviz.stages.multiframe.MotionIntegrator`),
+        standardised like a significance (local level and σ, tail calibration) every
+        :data:`CALIBRATE` frames and on every frame while its memory fills, the search region's
+        mean and spread followed in between (float32). None when there is no change image, and
+        for the first :data:`WARM_UP` frames after the integration (re)starts."""
         if self.multi is None:
             return None
         if change is None:
             self.multi.forget()
             return None
         a = self.multi.update(change, camera.shift if camera is not None else (0.0, 0.0))
-        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(a, mask=self._region.view(np.uint8)))
-        young = self.multi.frames <= WARM_UP
-        if learn_spread or self._multi is None or young:
+        sub = np.ascontiguousarray(a[::4, ::4])  # the drift: a sample is enough
+        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(sub, mask=np.ascontiguousarray(self._region[::4, ::4]).view(np.uint8)))
+        # its distribution settles over a few memories (1 / (1 - λ) frames each): standardised every frame till then
+        young = self.multi.frames <= 3.0 / max(1.0 - self.multi.memory, 1e-3)
+        if young or self._multi is None or (learn_spread and self.multi.frames % CALIBRATE < self.config.noise.every):
             assert self.multi_noise is not None
-            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a, reset=young)
+            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a, reset=True)
             factor = self.multi_tail.update(est.significance(a), self._region,
                                             overall=self.config.noise.change_floor_overall)
             self._multi = (est.level, cv2.divide(1.0, cv2.multiply(est.sigma, factor)), mean, std)
         if self.multi.frames < WARM_UP:
             return None
         level, scale, mean0, std0 = self._multi
-        z = cv2.multiply(cv2.subtract(a, level + np.float32(mean - mean0)), scale * np.float32(std0 / max(std, 1e-6)))
-        z[z < cv2.dilate(z, _PEAK)] = np.nan
-        z[~self._region] = np.nan
-        return z
+        z = cv2.subtract(a, level)
+        z -= np.float32(mean - mean0)
+        return cv2.multiply(z, scale, scale=std0 / max(std, 1e-6))
 
     def _change(self, raw: np.ndarray, img: np.ndarray, suppressed: np.ndarray,
                 camera: CameraState | None, learn_spread: bool) -> np.ndarray | None:

@@ -47,17 +47,18 @@ class MotionIntegrator:
         self.frames = 0
 
     def update(self, change: np.ndarray, shift: tuple[float, float] = (0.0, 0.0)) -> np.ndarray:
-        """This frame's score (float32, ``change``'s shape; a new array): ``change`` (NaN:
-        unknown, no evidence) clipped to ±clip, plus λ × the best score within 1 px on the
-        previous frame, moved by the camera's ``shift`` (px)."""
-        c = np.nan_to_num(np.asarray(change, dtype=np.float32), nan=0.0, posinf=self.clip, neginf=-self.clip)
-        np.clip(c, -self.clip, self.clip, out=c)
+        """This frame's score (float32, ``change``'s shape; the integrator's own array: read it,
+        do not modify it): ``change`` (NaN: unknown, no evidence) clipped to ±clip, plus λ × the
+        best score among the 8 neighbours on the previous frame, moved by the camera's
+        ``shift`` (px)."""
+        c = np.clip(np.asarray(change, dtype=np.float32), -self.clip, self.clip)
+        cv2.patchNaNs(c, 0.0)
         past = self.score
         self.frames += 1
         if past is None or past.shape != c.shape:
             self.frames = 1
             self.score = c
-            return c.copy()
+            return c
         dx, dy = float(shift[0]), float(shift[1])
         if abs(dx) > 1e-3 or abs(dy) > 1e-3:
             m = np.float32([[1, 0, dx], [0, 1, dy]])  # this frame's p held the scene point at p - shift
@@ -65,4 +66,4 @@ class MotionIntegrator:
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         best = cv2.dilate(past, _NEIGHBOURS, borderType=cv2.BORDER_REPLICATE)
         self.score = cv2.scaleAdd(best, self.memory, c)
-        return self.score.copy()
+        return self.score
