@@ -104,6 +104,10 @@ class DetectionConfig:
     # that carries on along a line or an edge) exceeds this is line-like: it starts no track and
     # its hits count as static clutter (not in the paper); 1: off
     max_linearity: float = field(default=0.45, metadata=value_range(0.0, 1.0))
+    # multi-frame detection (not in the paper; wfviz.stages.multiframe): the change significance
+    # integrated along every path moving up to 1 px a frame, with this memory λ per frame (an
+    # effective 1 / (1 - λ) frames; 0: off), each frame's value clipped to ±multi_clip σ; path
+    # heads above k_sigma are detected, their hits keep tracks on their targets without evidence
     multi_memory: float = field(default=0.85, metadata=value_range(0.0, 0.99))
     multi_clip: float = field(default=3.0, metadata=value_range(0.5, 20.0))
     # confirmed tracks' gates are searched beyond the search region too, below the horizon

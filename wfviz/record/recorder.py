@@ -203,7 +203,7 @@ def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
 
 #: the entities that are images of the frame (raw, stage and map images, masks)
 IMAGE_ENTITIES = ("camera/image", "camera/mask", "camera/search_region", "suppressed/image", "suppressed/noise",
-                  "clutter/map")
+                  "clutter/map", "suppressed/multiframe")
 
 
 def pixel_centres(rec: Any, paths: tuple[str, ...] = IMAGE_ENTITIES) -> None:
@@ -572,8 +572,8 @@ class Recorder:
     def log_front_end(self, result: FrontEndTrackResult, images: bool) -> None:
         """What the trackers on the shared front end (:mod:`wfviz.stages.front_end`) report in
         common: the scene geometry (:func:`log_geometry`), the sensor defects replaced
-        (``defects/count``), the noise map (``suppressed/noise``) and the search region
-        (``camera/search_region``) on exact frames, the camera motion (``registration/*``) and the
+        (``defects/count``), the noise map (``suppressed/noise``), the multi-frame significance
+        (``suppressed/multiframe``) and the search region (``camera/search_region``) on exact frames, the camera motion (``registration/*``) and the
         sequential test's levels (``tracks/*``)."""
         front = result.front
         if not self._front_started:
@@ -588,6 +588,8 @@ class Recorder:
             if due:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), value_map=True)
             self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
+        if front.multiframe is not None and due:
+            self.image("suppressed/multiframe", front.multiframe.astype(np.float16), value_map=True)
         if due:
             self._log_search_region(front)
         if front.camera is not None:
@@ -665,7 +667,7 @@ class Recorder:
         if len(d):  # hover values; an empty AnyValues batch only draws a warning
             extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
                 ("significance", d.significance), ("change", d.change), ("blobness", d.blobness),
-                ("linearity", d.linearity))
+                ("linearity", d.linearity), ("multiframe", d.multiframe))
                 if v is not None}
             rec.log("camera/detections", points, rr.AnyValues(
                 area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra))

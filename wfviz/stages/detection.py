@@ -289,8 +289,7 @@ def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray) -> 
     """uint8 mask (1) of the pixels of ``region`` where ``multi`` (a multi-frame significance)
     exceeds ``k`` (σ; a number or a per-pixel map) and is the largest within 2 px: the head of a
     path, not its trail (each step behind it lower by the integrator's λ)."""
-    above = cv2.compare(multi, k, cv2.CMP_GT)
-    above &= np.asarray(region, dtype=bool).view(np.uint8)
+    above = np.asarray(cv2.compare(multi, k, cv2.CMP_GT)) & np.asarray(region, dtype=bool).view(np.uint8)
     idx = np.flatnonzero(above.view(bool))  # 0/1: numpy's fast path for bool
     if len(idx):
         h, w = multi.shape

@@ -179,7 +179,8 @@ class Preparer:
             if cfar and c.detection.multi_memory > 0 else None
         self.multi_noise = NoiseModel(c.noise.tile, c.noise.smoothing) if self.multi is not None else None
         self.multi_tail = TailCalibration(c.noise.tile, refresh=c.noise.every)
-        self._multi: tuple[np.ndarray, np.ndarray] | None = None  # level, 1 / (sigma x tail factor)
+        # level, 1 / (sigma x tail factor), and the region's mean and spread then
+        self._multi: tuple[np.ndarray, np.ndarray, float, float] | None = None
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -281,16 +282,18 @@ class Preparer:
             self.multi.forget()
             return None
         a = self.multi.update(change, camera.shift if camera is not None else (0.0, 0.0))
+        region = self._region
+        assert region is not None
         sub = np.ascontiguousarray(a[::4, ::4])  # the drift: a sample is enough
-        mean, std = (float(v[0, 0]) for v in cv2.meanStdDev(sub, mask=np.ascontiguousarray(self._region[::4, ::4]).view(np.uint8)))
+        m, sd = cv2.meanStdDev(sub, mask=np.ascontiguousarray(region[::4, ::4]).view(np.uint8))
+        mean, std = float(m[0, 0]), float(sd[0, 0])
         # its distribution settles over a few memories (1 / (1 - λ) frames each): standardised every frame till then
         young = self.multi.frames <= 3.0 / max(1.0 - self.multi.memory, 1e-3)
         if young or self._multi is None or (learn_spread and self.multi.frames % CALIBRATE < self.config.noise.every):
             assert self.multi_noise is not None
-            est = self.multi_noise.update(np.where(self._region, a, 0.0), self._region, None, image=a, reset=True)
-            factor = self.multi_tail.update(est.significance(a), self._region,
-                                            overall=self.config.noise.change_floor_overall)
-            self._multi = (est.level, cv2.divide(1.0, cv2.multiply(est.sigma, factor)), mean, std)
+            est = self.multi_noise.update(np.where(region, a, 0.0), region, None, image=a, reset=True)
+            factor = self.multi_tail.update(est.significance(a), region, overall=self.config.noise.change_floor_overall)
+            self._multi = (est.level, np.asarray(cv2.divide(1.0, cv2.multiply(est.sigma, factor))), mean, std)
         if self.multi.frames < WARM_UP:
             return None
         level, scale, mean0, std0 = self._multi

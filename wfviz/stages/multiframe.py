@@ -61,7 +61,7 @@ class MotionIntegrator:
             return c
         dx, dy = float(shift[0]), float(shift[1])
         if abs(dx) > 1e-3 or abs(dy) > 1e-3:
-            m = np.float32([[1, 0, dx], [0, 1, dy]])  # this frame's p held the scene point at p - shift
+            m = np.array([[1.0, 0.0, dx], [0.0, 1.0, dy]], dtype=np.float32)  # p held the scene point at p - shift
             past = cv2.warpAffine(past, m, (c.shape[1], c.shape[0]), flags=cv2.INTER_LINEAR,
                                   borderMode=cv2.BORDER_CONSTANT, borderValue=0.0)
         best = cv2.dilate(past, _NEIGHBOURS, borderType=cv2.BORDER_REPLICATE)

@@ -5,7 +5,8 @@ from __future__ import annotations
 
 from dataclasses import dataclass, field
 
-from wfviz.config import SHARED_SEARCH_SPACE, ConfigError, FrontEndSections, KalmanConfig, TrackingConfig, value_range
+from wfviz.config import (SHARED_SEARCH_SPACE, ConfigError, DetectionConfig, FrontEndSections, KalmanConfig,
+                          TrackingConfig, value_range)
 
 
 @dataclass(frozen=True)
@@ -33,8 +34,12 @@ class FusionMatchConfig:
 
 @dataclass(frozen=True)
 class FusionConfig(FrontEndSections):
-    """All stages of the feature-fusion Kalman tracker (Zheng Jia, Li Jiangyong and Chen Gang)."""
+    """All stages of the feature-fusion Kalman tracker (Zheng Jia, Li Jiangyong and Chen Gang).
+    Its detection has no multi-frame stage by default (``detection.multi_memory`` 0): its fused
+    features (a component's box, area and grey sum) are not those of a one-pixel path head, and
+    with it real false tracks doubled (docs/accuracy.md, issue 36)."""
 
+    detection: DetectionConfig = DetectionConfig(multi_memory=0.0)
     features: FusionFeaturesConfig = FusionFeaturesConfig()
     fusion: FusionMatchConfig = FusionMatchConfig()
     kalman: KalmanConfig = KalmanConfig()
