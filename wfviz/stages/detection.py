@@ -285,10 +285,13 @@ def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
     return float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
 
 
-def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray) -> np.ndarray:
+def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray,
+               found: np.ndarray | None = None, apart: int = 2) -> np.ndarray:
     """uint8 mask (1) of the pixels of ``region`` where ``multi`` (a multi-frame significance)
     exceeds ``k`` (σ; a number or a per-pixel map) and is the largest within 2 px: the head of a
-    path, not its trail (each step behind it lower by the integrator's λ)."""
+    path, not its trail (each step behind it lower by the integrator's λ); without those within
+    ``apart`` px of a pixel of ``found`` (what this frame detected on its own: the head adds
+    nothing there, and would widen that detection)."""
     above = np.asarray(cv2.compare(multi, k, cv2.CMP_GT)) & np.asarray(region, dtype=bool).view(np.uint8)
     idx = np.flatnonzero(above.view(bool))  # 0/1: numpy's fast path for bool
     if len(idx):
@@ -298,8 +301,13 @@ def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray) -> 
         rr = np.clip(r[:, None, None] + d[None, :, None], 0, h - 1)
         cc = np.clip(c[:, None, None] + d[None, None, :], 0, w - 1)
         best = multi[rr, cc].reshape(len(idx), -1).max(axis=1)
-        lower = idx[multi.ravel()[idx] < best]
-        above.ravel()[lower] = 0
+        drop = multi.ravel()[idx] < best
+        if found is not None:
+            a = np.arange(-apart, apart + 1)
+            fr = np.clip(r[:, None, None] + a[None, :, None], 0, h - 1)
+            fc = np.clip(c[:, None, None] + a[None, None, :], 0, w - 1)
+            drop |= found[fr, fc].reshape(len(idx), -1).any(axis=1)
+        above.ravel()[idx[drop]] = 0
     return above
 
 
@@ -325,8 +333,9 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
 
     ``multi`` (cfar only, with ``change``): the multi-frame significance
     (:mod:`wfviz.stages.multiframe`): its path heads above the threshold (:func:`path_heads`)
-    are detected too, and
-    weigh in the centroid like the others, but a component's significance and change stay
+    are detected too (in the centroid a head weighs only where no pixel of this frame's own
+    is above the threshold: a component found by this frame keeps its own centroid), but a
+    component's significance and change stay
     this frame's own (below the threshold for a component only the multi-frame evidence
     found: the tracks score each frame's own evidence, never the integrated one twice); its
     ``multiframe`` is the largest multi-frame significance among its pixels.
@@ -368,7 +377,8 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         if change is not None:  # NaN compares false
             binary |= cv2.compare(change, float(cfg.k_sigma) if k_map is None else k_map, cv2.CMP_GT)
             if multi is not None:
-                binary |= path_heads(multi, float(cfg.k_sigma) if k_map is None else k_map, region)
+                binary |= path_heads(multi, float(cfg.k_sigma) if k_map is None else k_map, region,
+                                     binary, max(2, cfg.merge_gap + 1))
         binary &= np.asarray(region, dtype=bool).view(np.uint8)
     # labels without cv2's stats (10x faster on sparse masks); stats from the few pixels below
     if cfg.merge_gap > 0:  # one target split by gaps of up to merge_gap px stays one component
@@ -388,11 +398,11 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         if change is not None:
             zc = np.nan_to_num(change.ravel()[idx].astype(np.float64), nan=-np.inf)
             k_here = cfg.k_sigma if k_map is None else k_map.ravel()[idx]
-            best = np.maximum(zval, zc)
-            if multi is not None:
+            own = np.maximum(zval, zc) - k_here
+            if multi is not None:  # a path head weighs only where nothing of this frame's own is above
                 zm = np.nan_to_num(multi.ravel()[idx].astype(np.float64), nan=-np.inf)
-                best = np.maximum(best, zm)
-            val = (best - k_here).astype(np.float32)
+                own = np.where(own > 0, own, 1e-3 * np.maximum(zm - k_here, 0.0))
+            val = own.astype(np.float32)
     w = residual.shape[1]
     ix, iy = idx % w, idx // w
     stats = _component_stats(lab, ix, iy, n)
