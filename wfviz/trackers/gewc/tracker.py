@@ -17,6 +17,7 @@ from wfviz.stages.registration import CameraState
 from wfviz.trackers.base import FrontEndTrackResult, StageTimer, min_side
 from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
+from wfviz.tracking.association import Association
 from wfviz.tracking.clutter_map import ClutterMap, ClutterView
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
 
@@ -43,6 +44,10 @@ class GEWCResult(FrontEndTrackResult):
     #: the clutter map at this frame (:meth:`wfviz.tracking.clutter_map.ClutterView.prior` gives
     #: its static-clutter prior per cell of the image; None: no map)
     clutter_map: ClutterView | None = None
+
+
+#: px: a hit only the multi-frame stage found is taken this close to a prediction only
+HEAD_RADIUS = 2.0
 
 
 class GEWCTracker:
@@ -98,6 +103,7 @@ class GEWCTracker:
         if c.tracking.reacquire > 0:
             assoc = self.manager.reacquire(preds, dets.xy, assoc, self._could_confirm(dets, labels),
                                            c.tracking.reacquire)
+        assoc = self._near_heads_only(assoc, preds, dets, gate_k)
         lap("associate")
         meas = self._measure(assoc.pairs, preds, dets, suppressed, fe.noise)
         lap("centroid")
@@ -201,6 +207,23 @@ class GEWCTracker:
         if labels is not None:
             ok &= labels != 1
         return ok & ~dets.line_like()
+
+    def _near_heads_only(self, assoc: Association, preds: list[Prediction], dets: Detections,
+                         gate_k: np.ndarray | None) -> Association:
+        """``assoc`` without the pairs of a detection only the multi-frame stage found (its own
+        significance below the track's threshold) lying more than :data:`HEAD_RADIUS` px from
+        the track's prediction: a path head marks where a dim target is to about a pixel, and a
+        track that lost its target must not be fed by the noise heads about it."""
+        if dets.multiframe is None or dets.significance is None or not assoc.pairs:
+            return assoc
+        k = self.config.detection.k_sigma
+        keep = {}
+        for i, j in assoc.pairs.items():
+            ki = k if gate_k is None else min(float(gate_k[i]), k)
+            far = np.hypot(dets.xy[j, 0] - preds[i].x, dets.xy[j, 1] - preds[i].y) > HEAD_RADIUS
+            if not (dets.significance[j] < ki - 1e-9 and far):
+                keep[i] = j
+        return assoc if len(keep) == len(assoc.pairs) else assoc.with_pairs(keep)
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray, noise: NoiseEstimate | None = None) -> dict[int, Measurement]:
