@@ -459,17 +459,6 @@ def synth(
     out.print(f"  track it: wfviz record {path} --truth {path / 'truth.csv'}", highlight=False, markup=False)
 
 
-def _has_backfilled_rows(tracks: Path) -> bool:
-    """Whether a tracks CSV has a ``backfilled`` column with a 1 in it (``--backfill``)."""
-    import csv
-
-    with open(tracks, newline="", encoding="utf-8-sig") as fh:
-        reader = csv.DictReader(fh)
-        if "backfilled" not in (reader.fieldnames or []):
-            return False
-        return any((row.get("backfilled") or "").strip() == "1" for row in reader)
-
-
 @app.command("eval")
 @_guarded
 def eval_(
@@ -484,7 +473,7 @@ def eval_(
     """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
     import json
 
-    from wfviz.evaluate import evaluate, format_backfilled, format_table
+    from wfviz.evaluate import evaluate, format_backfilled, format_table, has_backfilled_rows
 
     if explain is None and (tracks is None or truth is None):
         raise ValueError("eval: give TRACKS and TRUTH (or --explain EXPLAIN.csv)")
@@ -504,7 +493,7 @@ def eval_(
         result = evaluate(tracks, truth, gate=gate, all_rows=all_rows, use_boxes=not no_boxes)
         out.print(format_table(result), highlight=False, markup=False)
         data = result.to_dict()
-        if not all_rows and _has_backfilled_rows(tracks):
+        if not all_rows and has_backfilled_rows(tracks):
             online = evaluate(tracks, truth, gate=gate, use_boxes=not no_boxes, online=True)
             out.print(format_backfilled(online, online=True), highlight=False, markup=False)
             data["online"] = online.to_dict()

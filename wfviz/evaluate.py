@@ -451,3 +451,12 @@ def format_backfilled(result: EvalResult, online: bool = False) -> str:
     return (f"{how}: Pd {num(r.pd)} ({num(r.pd_settled)} after each target's first {SETTLE} frames)"
             f"   MOTA {num(r.mota)}   false alarms/frame {num(r.fa_per_frame)}"
             f"   mean latency {num(r.latency_mean, '.1f')} frames")
+
+
+def has_backfilled_rows(tracks: Path | str) -> bool:
+    """Whether a tracks CSV has a ``backfilled`` column with a 1 in it (``--backfill``)."""
+    with open(tracks, newline="", encoding="utf-8-sig") as fh:
+        reader = csv.DictReader(fh)
+        if "backfilled" not in (reader.fieldnames or []):
+            return False
+        return any((row.get("backfilled") or "").strip() == "1" for row in reader)

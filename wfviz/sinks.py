@@ -133,7 +133,6 @@ class TracksWriter(TextOutput):
         super().__init__(path, ",".join(TRACKS_HEADER + (["backfilled"] if backfill else [])))
         self.backfill = backfill
         self.confirmed: set[int] = set()  # ids of the tracks confirmed so far
-        self.backfilled = 0  # rows rewritten by close()
 
     def write_tracks(self, frame: int, tracks: tuple[TrackState, ...]) -> None:
         """Append the rows of one frame."""
@@ -161,7 +160,6 @@ class TracksWriter(TextOutput):
                         if f[4] == "0" and int(f[1]) in self.confirmed:
                             rest = f[5].rsplit(",", 1)[0]
                             line = f"{f[0]},{f[1]},{f[2]},{f[3]},1,{rest},1\r\n"
-                            self.backfilled += 1
                         dst.write(line)
             except BaseException:
                 final.unlink(missing_ok=True)
@@ -180,7 +178,6 @@ class TracksSink(BaseSink):
     def __init__(self, path: Path, run: int = 0, backfill: bool = False) -> None:
         self.writer: TracksWriter | None = TracksWriter(path, backfill)
         self.run = run
-        self.backfilled = 0  # rows rewritten as confirmed, once finished
 
     def step(self, step: Step) -> None:
         assert self.writer is not None
@@ -189,7 +186,6 @@ class TracksSink(BaseSink):
     def finish(self, end: RunEnd) -> None:
         if self.writer is not None:
             self.writer.close()
-            self.backfilled = self.writer.backfilled
             self.writer = None  # complete: an abort later (another sink failing) keeps it
 
     def abort(self) -> None:

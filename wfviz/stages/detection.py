@@ -297,9 +297,8 @@ def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray,
     if len(idx):
         h, w = multi.shape
         r, c = idx // w, idx % w
-        d = np.arange(-2, 3)
-        rr = np.clip(r[:, None, None] + d[None, :, None], 0, h - 1)
-        cc = np.clip(c[:, None, None] + d[None, None, :], 0, w - 1)
+        rr = np.clip(r[:, None, None] + _AROUND[None, :, None], 0, h - 1)
+        cc = np.clip(c[:, None, None] + _AROUND[None, None, :], 0, w - 1)
         best = multi[rr, cc].reshape(len(idx), -1).max(axis=1)
         drop = multi.ravel()[idx] < best
         if found is not None:

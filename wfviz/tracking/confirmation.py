@@ -110,6 +110,13 @@ def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
     return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
 
 
+def multiframe_only(z: np.ndarray, k: float | np.ndarray) -> np.ndarray:
+    """Hits whose own significance ``z`` is below their threshold ``k`` (σ): found by the
+    multi-frame stage only (:func:`wfviz.stages.detection.detect`; NaN: not known, False)."""
+    z = np.asarray(z, dtype=np.float64)
+    return np.isfinite(z) & (z < np.asarray(k, dtype=np.float64) - 1e-9)
+
+
 def change_evidence(z_change: np.ndarray, threshold: float, q_static: float, q_target: float) -> np.ndarray:
     """ln of the likelihood ratio that a hit's change significance gives against static clutter,
     in Wald's form for a yes/no observation: the hit has *changed* when its change significance

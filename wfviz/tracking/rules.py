@@ -250,7 +250,7 @@ class SequentialRule(Rule):
         new.score[:] = confirmation.score_change(np.ones(k, dtype=bool), tc.p_detect, p_fa)
         if births.significance is not None:
             zb = np.asarray(births.significance, dtype=np.float64)
-            below = self._below(zb, np.full(k, self.detection_threshold))
+            below = confirmation.multiframe_only(zb, self.detection_threshold)
             new.score += confirmation.amplitude_score(zb, self.detection_threshold)
             new.score[below] = 0.0  # born of the multi-frame stage: no evidence yet (decide)
             if births.novelty is not None:
@@ -259,12 +259,6 @@ class SequentialRule(Rule):
                     nov, self.detection_threshold, tc.static_change_rate, tc.target_change_rate))
                 new.clutter_score[:] = new.clutter_hits[:, -1]
         self.stats.append(new)
-
-    @staticmethod
-    def _below(z: np.ndarray, k: np.ndarray) -> np.ndarray:
-        """Hits whose own significance is below their threshold: found by the multi-frame stage
-        only (:func:`wfviz.stages.detection.detect`)."""
-        return np.isfinite(z) & (z < k - 1e-9)
 
     def min_hits(self, levels: confirmation.Thresholds | None) -> int:
         """The "not clutter" test gains at most ln(target_change_rate / static_change_rate) per
@@ -313,7 +307,7 @@ class SequentialRule(Rule):
                                                      tc.static_change_rate, tc.target_change_rate)
             # a hit only the multi-frame stage found carries no evidence of its own (its score
             # shares its history with the last frames'): it keeps the track on its target
-            below = m[self._below(z[m], k_gate[m])]
+            below = m[confirmation.multiframe_only(z[m], k_gate[m])]
             change[below] = 0.0
             clutter[below] = 0.0
             # a tentative track's line-like hit is evidence for clutter: it counts as unchanged

@@ -19,7 +19,7 @@ from wfviz.trackers.gewc.config import GEWCConfig
 from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
 from wfviz.tracking.association import Association
 from wfviz.tracking.clutter_map import ClutterMap, ClutterView
-from wfviz.tracking.confirmation import DetectionDensity, gate_threshold
+from wfviz.tracking.confirmation import DetectionDensity, gate_threshold, multiframe_only
 
 
 @dataclass(frozen=True)
@@ -216,14 +216,17 @@ class GEWCTracker:
         track that lost its target must not be fed by the noise heads about it."""
         if dets.multiframe is None or dets.significance is None or not assoc.pairs:
             return assoc
-        k = self.config.detection.k_sigma
-        keep = {}
-        for i, j in assoc.pairs.items():
-            ki = k if gate_k is None else min(float(gate_k[i]), k)
-            far = np.hypot(dets.xy[j, 0] - preds[i].x, dets.xy[j, 1] - preds[i].y) > HEAD_RADIUS
-            if not (dets.significance[j] < ki - 1e-9 and far):
-                keep[i] = j
-        return assoc if len(keep) == len(assoc.pairs) else assoc.with_pairs(keep)
+        rows = np.array(list(assoc.pairs), dtype=np.int64)
+        cols = np.array([assoc.pairs[i] for i in rows], dtype=np.int64)
+        k = np.full(len(rows), self.config.detection.k_sigma)
+        if gate_k is not None:
+            k = np.minimum(np.asarray(gate_k, dtype=np.float64)[rows], k)
+        at = np.array([[preds[i].x, preds[i].y] for i in rows])
+        far = np.hypot(*(dets.xy[cols] - at).T) > HEAD_RADIUS
+        drop = far & multiframe_only(dets.significance[cols], k)
+        if not drop.any():
+            return assoc
+        return assoc.with_pairs({int(i): int(j) for i, j, d in zip(rows, cols, drop) if not d})
 
     def _measure(self, pairs: dict[int, int], preds: list, dets: Detections,
                  suppressed: np.ndarray, noise: NoiseEstimate | None = None) -> dict[int, Measurement]:
