@@ -179,8 +179,8 @@ class Preparer:
             if cfar and c.detection.multi_memory > 0 else None
         self.multi_noise = NoiseModel(c.noise.tile, c.noise.smoothing) if self.multi is not None else None
         self.multi_tail = TailCalibration(c.noise.tile, refresh=c.noise.every) if self.multi is not None else None
-        # level, 1 / (sigma x tail factor), the region's mean and spread then, and the frame (multi.frames)
-        self._multi: tuple[np.ndarray, np.ndarray, float, float, int] | None = None
+        # level, 1 / (sigma x tail factor), and the region's mean and spread then
+        self._multi: tuple[np.ndarray, np.ndarray, float, float] | None = None
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -240,7 +240,7 @@ class Preparer:
             if change is not None and len(self.bad.flagged):
                 change = _unknown_at(change, self.bad.flagged)
             lap("change")
-            multiframe = self._multiframe(change, camera)
+            multiframe = self._multiframe(change, camera, whole and due)
             lap("multiframe")
             # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
             bad_changed = self.bad.update(raw, typical_threshold(noise, c.defects.k_sigma))
@@ -268,11 +268,14 @@ class Preparer:
         self._noise = replace(est, sigma=est.sigma * g)
         return self._noise
 
-    def _multiframe(self, change: np.ndarray | None, camera: CameraState | None) -> np.ndarray | None:
+    def _multiframe(self, change: np.ndarray | None, camera: CameraState | None,
+                    learn_spread: bool) -> np.ndarray | None:
         """The multi-frame significance of every pixel: the score of the best path of the change
         significance ending there (:class:`wfviz.stages.multiframe.MotionIntegrator`),
-        standardised like a significance (local level and σ, tail calibration) every
-        :data:`CALIBRATE` frames and on every frame while its memory fills, the search region's
+        standardised like a significance (local level and σ, tail calibration) about every
+        :data:`CALIBRATE` frames (on the frames ``learn_spread``, where the noise statistics are
+        re-estimated, in the first ``noise.every`` of every :data:`CALIBRATE`) and on every frame
+        while its memory fills, the search region's
         mean and spread followed in between (float32). None when there is no change image, and
         for the first :data:`WARM_UP` frames after the integration (re)starts."""
         if self.multi is None:
@@ -288,15 +291,14 @@ class Preparer:
         mean, std = float(m[0, 0]), float(sd[0, 0])
         # its distribution settles over a few memories (1 / (1 - λ) frames each): standardised every frame till then
         young = self.multi.frames <= 3.0 / max(1.0 - self.multi.memory, 1e-3)
-        if young or self._multi is None or self.multi.frames - self._multi[4] >= CALIBRATE:
+        if young or self._multi is None or (learn_spread and self.multi.frames % CALIBRATE < self.config.noise.every):
             assert self.multi_noise is not None and self.multi_tail is not None
             est = self.multi_noise.update(np.where(region, a, 0.0), region, None, image=a, reset=True)
             factor = self.multi_tail.update(est.significance(a), region, overall=self.config.noise.change_floor_overall)
-            self._multi = (est.level, np.asarray(cv2.divide(1.0, cv2.multiply(est.sigma, factor))), mean, std,
-                           self.multi.frames)
+            self._multi = (est.level, np.asarray(cv2.divide(1.0, cv2.multiply(est.sigma, factor))), mean, std)
         if self.multi.frames < WARM_UP:
             return None
-        level, scale, mean0, std0, _ = self._multi
+        level, scale, mean0, std0 = self._multi
         z = cv2.subtract(a, level)
         z -= np.float32(mean - mean0)
         return cv2.multiply(z, scale, scale=std0 / max(std, 1e-6))
