@@ -82,13 +82,14 @@ def test_a_dim_mover_is_found_by_the_multi_frame_stage(speed: float) -> None:
     frame misses, and the tracker keeps a track on it."""
     x0, y = 20.0, 64.0
     frames = _clip(80, lambda k, f: _spot(f, x0 + speed * k, y, 4.0 * SIGMA))
-    multi, single, results = _heads_near(frames, lambda k: (x0 + speed * k, y))
+    base = load_config(None, config_class("gewc"))  # the stage alone: no sub-threshold reads
+    base = replace(base, tracking=replace(base.tracking, read_misses=False))
+    multi, single, results = _heads_near(frames, lambda k: (x0 + speed * k, y), base)
     late = range(30, 80)
     found = [multi[k] or single[k] for k in late]
     assert sum(found) >= 0.6 * len(late), (sum(multi[30:]), sum(single[30:]))
     assert sum(multi[k] and not single[k] for k in late) >= 0.3 * len(late)  # what it adds
-    none = load_config(None, config_class("gewc"))
-    off = replace(none, detection=replace(none.detection, multi_memory=0.0))
+    off = replace(base, detection=replace(base.detection, multi_memory=0.0))
     m_off, s_off, r_off = _heads_near(frames, lambda k: (x0 + speed * k, y), off)
     assert not any(m_off)  # off: no multi-frame detection
     assert sum(found) > sum(s_off[k] for k in late)

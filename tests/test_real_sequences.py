@@ -27,7 +27,7 @@ DATA = ROOT.parent / "shared" / "data" / "real"
 CASES = [
     ("gewc", "tensoristd_sky/easy2", 0.833, 0.0),
     ("gewc", "tensoristd_sky/easy6", 0.650, 0.28),
-    ("gewc", "daub_tensoristd/sequence1", 0.870, 0.13),
+    ("gewc", "daub_tensoristd/sequence1", 0.790, 0.010),  # 0.82 before the sub-threshold reads (accuracy.md, issue 36)
     ("gewc", "daub_tensoristd/sequence11", 0.950, 0.20),
     ("gewc", "svanstrom_ir/IR_AIRPLANE_060", 0.860, 0.0),
     ("gewc", "svanstrom_ir/IR_BIRD_017", 0.947, 0.047),

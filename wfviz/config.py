@@ -183,6 +183,9 @@ class TrackingConfig:
     # the scene than across it slides along a line (a road, an edge: the detected piece moves
     # along it) and is not confirmed (tracking.confirmation.slide); 0: off (chosen on real half A)
     max_slide: float = field(default=1.75, metadata=value_range(0.0, None))
+    # confirm = "sprt": a miss reads the change significance at the track's prediction and scores
+    # it (tracking.subthreshold): a dim target below the threshold is evidence, noise against
+    read_misses: bool = True
     static_change_rate: float = field(default=0.05, metadata=value_range(1e-6, 0.5))
     target_change_rate: float = field(default=0.7, metadata=value_range(0.01, 0.999))
     confirm_hits: int = field(default=6, metadata=value_range(1, None))

@@ -16,6 +16,7 @@ from enum import StrEnum
 import numpy as np
 
 from wfviz.tracking.confirmation import Thresholds
+from wfviz.tracking.subthreshold import NullReads
 
 _NOT = {">=": "<", "<=": ">", ">": "<=", "<": ">="}
 
@@ -40,7 +41,10 @@ class Evidence:
     gate; None: no map;
 
     ``linearity``: each hit's linearity (:func:`wfviz.stages.detection.linearity`; NaN: no hit,
-    None: not measured), line-like above ``max_linearity``."""
+    None: not measured), line-like above ``max_linearity``; ``read``: each track's change
+    significance read at its prediction (:func:`wfviz.tracking.subthreshold.read_at`; NaN: not
+    read, None: no reads), scored on a miss against ``read_null``
+    (:func:`wfviz.tracking.subthreshold.read_score`)."""
 
     measured: np.ndarray
     missed: np.ndarray
@@ -58,6 +62,8 @@ class Evidence:
     clutter_map: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None
     linearity: np.ndarray | None = None
     max_linearity: float = 1.0
+    read: np.ndarray | None = None
+    read_null: NullReads | None = None
 
     def line_hits(self) -> np.ndarray:
         """The tracks whose hit this frame is line-like (``linearity > max_linearity``)."""

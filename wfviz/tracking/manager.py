@@ -32,6 +32,7 @@ from wfviz.tracking.decision import Decision, Evidence, Verdicts
 from wfviz.tracking.rules import CONFIRMATION_RULES, Rule
 from wfviz.tracking.table import TrackTable
 from wfviz.tracking.tracks import EventKind, Prediction, TrackEvent, TrackState
+from wfviz.tracking.subthreshold import NullReads
 
 TEST_MEMORY = 0.9  # weight of the past in the running mean of tentative tracks tested per frame
 
@@ -296,7 +297,8 @@ class TrackManager:
                positions: dict[int, tuple[float, float]] | None = None, track_density: np.ndarray | None = None,
                gate_k: np.ndarray | None = None, start: np.ndarray | bool | None = None,
                frame_shape: tuple[int, ...] | None = None,
-               track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None) -> list[TrackEvent]:
+               track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
+               track_read: np.ndarray | None = None, read_null: NullReads | None = None) -> list[TrackEvent]:
         """Apply this frame's ``association`` of ``detections``; count misses, confirm, delete,
         start new tracks (:meth:`initiate`; ``start`` as there). Returns the frame's events
         (including the meeting events of :meth:`predict` and those of :meth:`reacquire`).
@@ -311,6 +313,9 @@ class TrackManager:
         the image's (rows, columns); a coasting track whose position leaves it is deleted.
         ``track_clutter``: the clutter map's counts and exposures about each track and this frame's count in its gate
         (:class:`~wfviz.tracking.clutter_map.ClutterMap`; the sequential rule's static prior).
+        ``track_read``: the change significance read at each track's prediction and the null of
+        such reads ``read_null`` (:mod:`wfviz.tracking.subthreshold`; the sequential rule scores
+        a miss's read).
 
         Per measured track the rules read its detection's significance (a track is confirmed at
         ``confirm_hits`` hits when their mean also reaches ``confirm_significance``; 0 = hits
@@ -370,7 +375,7 @@ class TrackManager:
             clutter[list(labels)] = list(labels.values())
         self._decide(rows, z, association.nearest, clutter, track_density, significance, hit_novelty, gate_k,
                      track_clutter, hit_linearity, d.max_linearity,
-                     None if d.size is None else np.asarray(d.size, dtype=np.float64)[det])
+                     None if d.size is None else np.asarray(d.size, dtype=np.float64)[det], track_read, read_null)
         tested = int((~self.tracks.confirmed).sum()) + len(births)
         b = self.tested_per_frame
         self.tested_per_frame = tested if b is None else TEST_MEMORY * b + (1 - TEST_MEMORY) * tested
@@ -404,7 +409,8 @@ class TrackManager:
                 gate_k: np.ndarray | None,
                 track_clutter: tuple[np.ndarray, np.ndarray, np.ndarray] | None = None,
                 linearity: np.ndarray | None = None, max_linearity: float = 1.0,
-                size: np.ndarray | None = None) -> None:
+                size: np.ndarray | None = None, read: np.ndarray | None = None,
+                read_null: NullReads | None = None) -> None:
         """Report, count misses, let the rule decide (the :class:`Evidence` of the measured
         ``rows`` with measurements ``z``, their components' sizes ``size``), end the tracks it
         deletes and those :meth:`_gone`."""
@@ -431,7 +437,7 @@ class TrackManager:
         out = self.rule.decide(t, Evidence(measured, missed, moved, reported, clutter, density, significance,
                                            novelty, gate_k, half, g.S_inv, nearest, self.tested_per_frame,
                                            clutter_map=track_clutter, linearity=linearity,
-                                           max_linearity=max_linearity))
+                                           max_linearity=max_linearity, read=read, read_null=read_null))
         if out.thresholds is not None:
             self.thresholds = out.thresholds
         confirm, delete, why = out.confirm, out.delete, out.why

@@ -19,7 +19,7 @@ from typing import ClassVar
 import numpy as np
 
 from wfviz.config import ClutterConfig, TrackingConfig
-from wfviz.tracking import confirmation
+from wfviz.tracking import confirmation, subthreshold
 from wfviz.tracking.association import Measurements
 from wfviz.tracking.clutter_map import static_rate
 from wfviz.tracking.decision import Decisions, Evidence, Statistic
@@ -316,6 +316,14 @@ class SequentialRule(Rule):
         # a meeting track takes no measurement: no evidence while a detection lies near its
         # extrapolation, a miss when none does (it has lost its target)
         change[tracks.meeting & ~measured & (e.nearest >= 0)] = 0.0
+        # a miss's read below the threshold: how like a dim target, how like noise it is
+        read = np.full(n, np.nan)
+        if e.read is not None and e.read_null is not None and len(e.read) == n:
+            missed_read = e.missed & tracks.confirmed & np.isfinite(e.read)
+            if missed_read.any():
+                r = np.nonzero(missed_read)[0]
+                read[r] = subthreshold.read_score(e.read[r], k_gate[r], e.read_null)
+                change[r] += read[r]
         s.score += change
         if m.size:  # a window of the last MOTION_HISTORY hits: old evidence does not linger
             s.clutter_hits[m, :-1] = s.clutter_hits[m, 1:]
@@ -325,6 +333,9 @@ class SequentialRule(Rule):
         conf = tracks.confirmed
         s.score[conf] = np.minimum(s.score[conf], th.confirm)
         stats = [_measured(e)]
+        if e.read is not None:
+            stats.append(Statistic("sub-threshold evidence", read, np.nan, "<=", np.ones(n, dtype=bool),
+                                   unit="nats", info=True))
         if tc.clutter_map and e.clutter_map is not None:
             count, exposure, mine = e.clutter_map
             s.own_static = s.own_static * (1.0 - 1.0 / tc.clutter_memory) + mine

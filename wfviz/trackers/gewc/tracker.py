@@ -20,6 +20,7 @@ from wfviz.tracking import Measurements, Prediction, TrackManager, gate_boxes
 from wfviz.tracking.association import Association
 from wfviz.tracking.clutter_map import ClutterMap, ClutterView
 from wfviz.tracking.confirmation import DetectionDensity, gate_threshold, multiframe_only
+from wfviz.tracking.subthreshold import ReadNull, read_at
 
 
 @dataclass(frozen=True)
@@ -72,6 +73,7 @@ class GEWCTracker:
         t = c.tracking
         self.clutter_map = (ClutterMap(t.clutter_cell, t.clutter_memory)
                             if t.clutter_map and t.confirm == "sprt" else None)
+        self.reads = ReadNull() if t.read_misses and t.confirm == "sprt" else None
 
     @property
     def circle(self) -> ImagingCircle | None:
@@ -118,12 +120,21 @@ class GEWCTracker:
                 counted, mine = self._unexplained(dets, preds, assoc.pairs, fe.offset)
                 self.clutter_map.update(dets.xy[counted], fe.region, fe.offset)
             track_clutter = (*self.clutter_map.at(pred_xy, fe.offset), mine)
+        reads = null = None
+        if self.reads is not None and fe.change is not None:
+            reads = np.full(len(preds), np.nan)  # the confirmed tracks without a hit read (wfviz.tracking.rules)
+            missed = np.array([p.confirmed and i not in assoc.pairs for i, p in enumerate(preds)], dtype=bool)
+            if missed.any():
+                reads[missed] = read_at(fe.change, pred_xy[missed], mask=fe.region)
+                null = self.reads.snapshot()  # this frame's reads are not in it
+            self.reads.update(fe.change, fe.region)
         events = self.manager.update(
             assoc, Measurements(dets.xy, dets.significance, dets.blobness, dets.change, labels,
                                 self.density.at(dets.xy), dets.linearity, dets.max_linearity,
                                 size=dets.bbox[:, 2:4]),
             positions={i: (m.x, m.y) for i, m in meas.items()}, track_density=self.density.at(pred_xy),
-            gate_k=gate_k, frame_shape=fe.image.shape, track_clutter=track_clutter)
+            gate_k=gate_k, frame_shape=fe.image.shape, track_clutter=track_clutter, track_read=reads,
+            read_null=null)
         lap("kalman")
         timings = timer.done()
         return GEWCResult(
