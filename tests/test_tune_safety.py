@@ -11,6 +11,7 @@ import subprocess
 import sys
 import time
 from pathlib import Path
+from typing import Any
 
 import pytest
 from hypothesis import HealthCheck, given, settings
@@ -278,3 +279,198 @@ def test_any_compare_output_leaves_inputs_whole(study: Path, tmp_path_factory: p
         assert after.get(f) == sha, (f, name, r.output)
     assert not temporaries(root), (name, r.output)
     assert r.exit_code in (0, 2), (r.output, r.exception)
+
+
+# -- issue 37, 1: a refused command changes nothing -----------------------------------------------
+
+STOP = "8"
+STALE = ".trials.csv.999999999.x.wfviz-part"  # a temporary of a killed run (no such process)
+
+
+def snapshot(folder: Path) -> dict[str, tuple[bytes | None, int]]:
+    """Every file and folder under ``folder``, itself included: relative path -> (bytes, or None
+    for a folder; mtime_ns). A file written again with the same bytes, or a folder where a file
+    was made and removed, shows in the times."""
+    out: dict[str, tuple[bytes | None, int]] = {".": (None, folder.stat().st_mtime_ns)}
+    for p in sorted(folder.rglob("*")):
+        st = p.lstat()
+        out[str(p.relative_to(folder))] = (None if p.is_dir() else p.read_bytes(), st.st_mtime_ns)
+    return out
+
+
+@pytest.fixture(scope="module")
+def resumable(tmp_path_factory) -> Path:
+    """A folder holding a finished 2-trial study ``S`` (paths relative to the folder, so that a
+    copy of the folder resumes it) and its space file."""
+    root = tmp_path_factory.mktemp("resumable")
+    (root / "sp.toml").write_text(SPACE)
+    r = _tune_in(root)
+    assert r.exit_code == 0, r.output
+    return root
+
+
+def _tune_in(root: Path, *extra: str, clips: tuple[str, ...] = (CLIP,)) -> Any:
+    """``wfviz tune`` run in ``root`` as the resumable study was made, with ``extra`` options
+    (later options win)."""
+    import contextlib
+
+    with contextlib.chdir(root):
+        return invoke("tune", *clips, "--out", "S", "--space", "sp.toml", "--stop", STOP, "--workers", "1",
+                      "--trials", "2", *extra)
+
+
+def _refusal(root: Path, reason: str, value: int) -> tuple[tuple[str, ...], tuple[str, ...], str]:
+    """Set up ``root`` (a copy of the resumable study) for one reason to refuse: the extra
+    options, the clips and a word the error must hold."""
+    s = root / "S"
+    clips: tuple[str, ...] = (CLIP,)
+    if reason == "stop":
+        return ("--stop", str(int(STOP) + value)), clips, "stop differ"
+    if reason == "tracker":
+        return ("--tracker", "fusion"), clips, "tracker"  # (its configuration takes the space)
+    if reason == "clips":
+        return (), (CLIP, f"synth:fov70-maneuver:{value}"), "clips differ"
+    if reason == "validate":
+        return ("--validate", f"synth:fov70-maneuver:{value}"), clips, "clips differ"
+    if reason == "space":
+        (root / "sp2.toml").write_text(SPACE.replace("high = 6.0", f"high = {6 + value}.5"))
+        return ("--space", "sp2.toml"), clips, "space differ"
+    if reason == "objective":
+        return ("--objective", ["idf1", "pareto"][value % 2]), clips, "objective differ"
+    if reason == "seed":
+        return ("--seed", str(value)), clips, "seed differ"
+    if reason == "gate":
+        return ("--gate", f"{3 + value}.5"), clips, "gate differ"
+    if reason == "config":
+        (root / "cfg.toml").write_text(f"[tracking]\nmax_misses = {10 + value}\n")
+        return ("--config", "cfg.toml"), clips, "base differ"
+    if reason == "foreign":  # names of files the study has not written (yet)
+        name = ["best-3.toml", "pareto.csv", "truth/mine.csv", "recordings/trial-1-x.rrd"][value % 4]
+        (s / name).parent.mkdir(exist_ok=True)
+        (s / name).write_text("mine\n")
+        return (), clips, "not written by this study"
+    if reason == "input inside":  # the study's own best.toml, or a file in its truth folder
+        name = ["best.toml", "truth/cfg.toml"][value % 2]
+        if name != "best.toml":
+            (s / name).write_text("[detection]\nk_sigma = 4.0\n")
+        return ("--config", f"S/{name}"), clips, "lies where the study"
+    if reason == "journal":
+        (s / "study.journal").write_bytes(b"{not a journal\n"[: 4 + value % 10])
+        return (), clips, "study.journal"
+    if reason == "ray":
+        return ("--ray", "local"), clips, "needs Ray"
+    assert reason == "locked"
+    return (), clips, "in use"
+
+
+REASONS = ["stop", "tracker", "clips", "validate", "space", "objective", "seed", "gate", "config", "foreign",
+           "input inside", "journal", "ray", "locked"]
+
+
+def _ray_missing() -> bool:
+    import importlib.util
+
+    return importlib.util.find_spec("ray") is None
+
+
+def test_the_same_command_resumes_and_leaves_the_truth_as_it_was(resumable: Path,
+                                                                 tmp_path_factory: pytest.TempPathFactory) -> None:
+    """The control of the refusals below: without a reason the command is accepted (and a
+    resume that adds no trial keeps the truth and the journal as they were)."""
+    import shutil
+
+    root = tmp_path_factory.mktemp("same")
+    shutil.copytree(resumable, root, dirs_exist_ok=True)
+    before = snapshot(root / "S")
+    r = _tune_in(root)
+    assert r.exit_code == 0, r.output
+    after = snapshot(root / "S")
+    for kept in ("truth/fov70-maneuver-0.csv", "study.journal", "best.toml"):
+        assert after[kept] == before[kept], kept
+
+
+@pytest.mark.parametrize("reason", REASONS)
+@settings(max_examples=2, deadline=None, derandomize=True,
+          suppress_health_check=[HealthCheck.function_scoped_fixture, HealthCheck.too_slow])
+@given(value=st.integers(1, 9))
+def test_a_refused_tune_changes_no_file(resumable: Path, tmp_path_factory: pytest.TempPathFactory,
+                                       reason: str, value: int) -> None:
+    """Whatever refuses the command (a resume with other settings, files with the study's names
+    it did not write, an input where the study writes, an unreadable journal, a missing Ray, a
+    folder in use): exit 2, one line naming the problem, and every file and folder of the study
+    as it was: the same bytes, the same times, none added or removed (a killed run's temporary
+    too: it is cleared only once a command is accepted)."""
+    import fcntl
+    import shutil
+
+    if reason == "ray" and not _ray_missing():
+        return
+    root = tmp_path_factory.mktemp("refused")
+    shutil.copytree(resumable, root, dirs_exist_ok=True)
+    (root / "S" / STALE).write_text("")
+    extra, clips, word = _refusal(root, reason, value)
+    before = snapshot(root)
+    fd = os.open(root / "S", os.O_RDONLY | os.O_DIRECTORY)
+    try:
+        if reason == "locked":  # as a running study holds it
+            fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+        r = _tune_in(root, *extra, clips=clips)
+    finally:
+        os.close(fd)
+    assert r.exit_code == 2, (reason, r.output)
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and lines[0].startswith("wfviz: error: ") and word in lines[0], (reason, r.stderr)
+    after = snapshot(root)
+    assert after.keys() == before.keys(), (reason, after.keys() ^ before.keys())
+    for name, was in before.items():
+        assert after[name] == was, (reason, name)
+
+
+@pytest.mark.skipif(not _ray_missing(), reason="Ray is installed: --ray is not refused")
+def test_a_refused_tune_into_a_new_folder_leaves_no_folder(tmp_path: Path) -> None:
+    before = snapshot(tmp_path)
+    r = invoke("tune", CLIP, "--out", str(tmp_path / "new" / "deep" / "S"), "--stop", STOP, "--trials", "1",
+               "--workers", "1", "--ray", "local")
+    assert r.exit_code == 2 and "needs Ray" in r.stderr, r.output
+    assert snapshot(tmp_path) == before and not (tmp_path / "new").exists()
+
+
+@pytest.mark.parametrize("case", ["windows", "output a folder", "no trial"])
+def test_a_refused_compare_of_a_study_changes_none_of_its_files(study: Path, tmp_path: Path, case: str) -> None:
+    """compare --study refused after its study and its clip were read (frames too small for a
+    run's windows, an output that is a folder, a study with no finished trial): nothing in the
+    study's folder changes, not even a killed run's temporary beside the output."""
+    import shutil
+
+    s = tmp_path / "S"
+    shutil.copytree(study, s)
+    (s / STALE).write_text("")
+    clip, output, run = CLIP, s / "c.rrd", []
+    if case == "windows":
+        clip = str(write_folder(tmp_path / "tiny", {f"frame_{i:06d}.png": noise(shape=(18, 18)) for i in range(3)}))
+        (tmp_path / "big.toml").write_text("[suppression]\nsize = 25\n")
+        run = ["--run", f"big=gewc:{tmp_path / 'big.toml'}"]
+        word = "smaller than the processing windows"
+    elif case == "output a folder":
+        output, word = s / "truth", "is a folder"
+    else:  # a study whose first trial was cut short
+        import optuna
+        from optuna.storages import JournalStorage
+        from optuna.storages.journal import JournalFileBackend
+
+        from wfviz.tune.study import STUDY_NAME, load_journal
+
+        settings_attr = load_journal(s / "study.journal").user_attrs["settings"]
+        (s / "study.journal").unlink()
+        journal = JournalStorage(JournalFileBackend(str(s / "study.journal")))
+        cut = optuna.create_study(study_name=STUDY_NAME, storage=journal)
+        cut.set_user_attr("settings", settings_attr)
+        cut.ask()
+        word = "no finished trial"
+    before = snapshot(tmp_path)
+    r = invoke("compare", clip, "--study", str(s), "--top", "1", *run, "--stop", "3", "--no-images",
+               "-o", str(output))
+    assert r.exit_code == 2, r.output
+    lines = r.stderr.strip().splitlines()
+    assert len(lines) == 1 and word in lines[0], r.stderr
+    assert snapshot(tmp_path) == before

@@ -720,7 +720,7 @@ def compare(
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked and, with truth, where each run's Pd went."""
-    from wfviz.compare import check_labels, format_summary, parse_run, study_runs
+    from wfviz.compare import check_fit, check_labels, format_summary, parse_run, study_runs
     from wfviz.compare.session import compare as run_compare
 
     runs = [parse_run(s) for s in run_specs or []]
@@ -742,6 +742,7 @@ def compare(
                                for r in runs]
     configs = tuple((Path(s.split(":", 1)[1]), "a --run config file") for s in run_specs or [] if ":" in s)
     studied = tuple((f, f"a file of the study {study}") for f in (study.rglob("*") if study else ()) if f.is_file())
+    check_fit(source.shape, str(source.path or source.name), runs)  # refused before a folder is touched
     _guard_outputs(output, *csvs, *(f for p in whys for f in _explain_files(p)), clip=source,
                    inputs=((truth, "the truth file"), *configs, *studied))
     total = source.n_frames

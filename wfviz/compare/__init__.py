@@ -4,9 +4,9 @@ timeline, with the frames where they disagree marked. Pure: no rerun here (the r
 imported here: it opens the recording, which imports this package's pure parts)."""
 
 from wfviz.compare.differences import KINDS, Disagreements, FrameComparison, Mark, RunFrame
-from wfviz.compare.runs import RunGroup, RunSpec, check_labels, make_trackers, parse_run, study_runs
+from wfviz.compare.runs import RunGroup, RunSpec, check_fit, check_labels, make_trackers, parse_run, study_runs
 from wfviz.compare.summary import CompareSummary, Comparison, RunOutcome, format_summary, summarize
 
 __all__ = ["KINDS", "CompareSummary", "Comparison", "Disagreements", "FrameComparison", "Mark", "RunFrame",
-           "RunGroup", "RunOutcome", "RunSpec", "check_labels", "format_summary", "make_trackers", "parse_run",
+           "RunGroup", "RunOutcome", "RunSpec", "check_fit", "check_labels", "format_summary", "make_trackers", "parse_run",
            "study_runs", "summarize"]

@@ -13,6 +13,7 @@ from typing import Any, Callable
 import numpy as np
 
 from wfviz.config import config_to_toml, load_config
+from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Frame
 from wfviz.stages.front_end import FrontEnd, PreparedFrame, Preparer
 from wfviz.stages.imaging_circle import ImagingCircle
@@ -187,3 +188,11 @@ def make_trackers(runs: list[RunSpec]) -> tuple[list[Any], list[int]]:
             trackers.append(cls(r.config))
         group_of.append(g)
     return trackers, group_of
+
+
+def check_fit(shape: tuple[int, int], source: str, runs: list[RunSpec]) -> None:
+    """Refuse (one line, naming ``source`` and the smallest side needed) frames of ``shape``
+    that a run's configured windows do not fit in; nothing is written, so the command can check
+    this before it touches an output folder."""
+    for r in runs:  # the first run whose windows do not fit names its minimum
+        check_frame_size(shape, source, TRACKERS[r.tracker].tracker(r.config).min_frame_side())

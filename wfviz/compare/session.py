@@ -14,10 +14,9 @@ from dataclasses import replace
 from pathlib import Path
 
 from wfviz.compare.differences import KINDS, Disagreements
-from wfviz.compare.runs import RunGroup, RunSpec, check_labels, make_trackers
+from wfviz.compare.runs import RunGroup, RunSpec, check_fit, check_labels, make_trackers
 from wfviz.compare.summary import CompareSummary, Comparison, summarize
 from wfviz.evaluate import Points, Truth
-from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip
 from wfviz.io.outputs import check_writable
 from wfviz.record_options import RecorderOptions
@@ -93,10 +92,9 @@ def compare(clip: Clip, runs: list[RunSpec], *, recording: Path | None, tracks: 
     if wanted and truth is None:
         raise ValueError(f"{wanted[0]}: explaining the runs needs truth (--truth FILE)")
     name = str(clip.path) if clip.path is not None else clip.name
+    check_fit(clip.shape, name, runs)
     trackers, groups = make_trackers(runs)
     stepper = RunGroup(trackers)
-    for trk in trackers:  # the first run whose windows do not fit names its minimum
-        check_frame_size(clip.shape, name, trk.min_frame_side())
     for p in (*tracks, *wanted, *map(false_path, wanted), recording):
         if p is not None:
             check_writable(p)

@@ -96,7 +96,8 @@ def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path
     """Refuse (``OutputError``) an output that would replace an input of the command (``inputs``:
     (path, what it is), e.g. a clip frame, the truth, config or recording file; symlinks and hard
     links resolved), or any file already in an input image folder, or an image file there (it
-    would join the clip), or that names the same file as another output.
+    would join the clip), or that names the same file as another output, or a folder. Nothing is
+    written.
 
     Cost: a few system calls per output, plus one per input only for an output that resolves
     into an input folder or replaces an existing file."""
@@ -113,6 +114,8 @@ def check_not_inputs(outputs: Iterable[Path | None], inputs: Iterable[tuple[Path
             continue
         out = Path(out)
         target = out.resolve()
+        if target.is_dir():  # refused here, before an output folder is touched
+            raise OutputError(f"{out}: is a folder, expected a file name")
         for p, what in loose:
             if same_file(out, p):
                 raise OutputError(f"{out}: output would overwrite {what}")

@@ -115,32 +115,39 @@ class StudyFolder:
     @contextmanager
     def lock(self) -> Iterator[None]:
         """Create the folder if needed and hold it for this process (a second ``wfviz tune`` on
-        it is refused); a folder created here and left empty by a refusal is removed again."""
-        created = not self.path.exists()
+        it is refused). Nothing else is written: the checks run under the lock, then
+        :meth:`clear_stale`. A refusal (any exception) removes again the folders created here,
+        when nothing was written into them."""
+        created = [f for f in (self.path, *self.path.parents) if not f.exists()]
         try:
             self.path.mkdir(parents=True, exist_ok=True)
         except OSError as exc:
             raise OutputError(f"{self.path}: cannot create the study folder ({exc.strerror})") from None
-        fd = os.open(self.path, os.O_RDONLY | os.O_DIRECTORY)
+        ok = False
         try:
+            fd = os.open(self.path, os.O_RDONLY | os.O_DIRECTORY)
             try:
-                fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
-            except BlockingIOError:
-                raise OutputError(f"{self.path}: in use by another wfviz tune; wait for it to end "
-                                  "or choose another --out") from None
-            remove_stale(self.path)  # work folders of killed runs
-            ok = False
-            try:
+                try:
+                    fcntl.flock(fd, fcntl.LOCK_EX | fcntl.LOCK_NB)
+                except BlockingIOError:
+                    raise OutputError(f"{self.path}: in use by another wfviz tune; wait for it to end "
+                                      "or choose another --out") from None
                 yield
                 ok = True
             finally:
-                if not ok and created:
-                    try:
-                        self.path.rmdir()  # only if still empty
-                    except OSError:
-                        pass
+                os.close(fd)
         finally:
-            os.close(fd)
+            if not ok:
+                for folder in created:  # deepest first; only if still empty
+                    try:
+                        folder.rmdir()
+                    except OSError:
+                        break
+
+    def clear_stale(self) -> None:
+        """Remove the temporary files and work folders of killed runs (once the study is
+        accepted: a refused command changes nothing)."""
+        remove_stale(self.path)
 
     # -- writing -------------------------------------------------------------------------
     def claim(self, path: Path) -> Path:
@@ -155,9 +162,17 @@ class StudyFolder:
         return Path(path)
 
     def write(self, path: Path, data: bytes | str) -> Path:
-        """Write a study file whole (claimed first; its sub-folder made if needed)."""
+        """Write a study file whole to a temporary name, renamed into place (claimed first; its
+        sub-folder made if needed); a file that already holds ``data`` is not touched."""
+        self.claim(path)
+        data = data.encode("utf-8", "surrogateescape") if isinstance(data, str) else data
+        try:
+            if Path(path).read_bytes() == data:
+                return Path(path)  # the same: left as it is (its time too)
+        except OSError:
+            pass
         Path(path).parent.mkdir(parents=True, exist_ok=True)
-        write_atomically(self.claim(path), data)
+        write_atomically(Path(path), data)
         return Path(path)
 
     def remove(self, path: Path) -> None:

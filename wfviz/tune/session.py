@@ -13,7 +13,8 @@ from wfviz.tune.clips import StudyClip, study_clips, synth_truth, user_inputs
 from wfviz.tune.folder import JOURNAL, StudyFolder
 from wfviz.tune.outputs import ranked, trial_config, write_outputs
 from wfviz.tune.space import SearchSpace
-from wfviz.tune.study import StudySettings, StudyState, open_study, run_study
+from wfviz.tune.study import StudySettings, StudyState, check_study, open_study, run_study
+from wfviz.tune.workers import require_ray
 
 
 @dataclass(frozen=True)
@@ -45,20 +46,27 @@ def tune(settings: StudySettings, out: Path, *, record_best: int = 0, folds: int
     ``trials.csv``, the best configuration(s), ``report.md`` with its plots, ``study.rrd`` and,
     with ``record_best`` K, recordings of the K best trials and of the base on every clip.
 
-    Before anything is written: every input (the clips, their truth, and ``inputs`` such as the
-    ``--config`` and ``--space`` files) is checked to lie out of reach of the study's files, the
-    folder is locked for this process, files with the study's names that it did not write are
-    refused, and a resumed study's settings are compared (:func:`open_study`)."""
+    Every check that can refuse the command runs before any file of the study is created or
+    changed: Ray is there when asked for, every input (the clips, their truth, and ``inputs``
+    such as the ``--config`` and ``--space`` files) lies out of reach of the study's files, the
+    folder is free (locked for this process), it holds no file with the study's names that the
+    study did not write, and a resumed study has the same settings (:func:`check_study`). A
+    refused command leaves the folder as it was (a folder it had to create: removed again)."""
+    if settings.use_ray:
+        require_ray()
     folder = StudyFolder(out)
     files_in, folders_in = user_inputs(settings.clips)
     folder.check_inputs([*files_in, *((p, what) for p, what in inputs if p is not None)], folders_in)
     with folder.lock():
         folder.check_foreign()
-        if not (out / JOURNAL).exists():
+        found = check_study(out, settings)
+        # accepted: from here on the study's files are written
+        folder.clear_stale()
+        if found is None:
             folder.claim(out / JOURNAL)  # a new study: Optuna writes it
-        study = open_study(out, settings)
+        study = open_study(out, settings, found)
         for clip in settings.clips:
-            if clip.spec.startswith(SYNTH_PREFIX):
+            if clip.spec.startswith(SYNTH_PREFIX):  # to a temporary name, renamed; kept when the same
                 folder.write(clip.truth, synth_truth(clip.spec, settings.stop))
 
         def batch(state: StudyState) -> None:

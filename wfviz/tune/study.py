@@ -88,25 +88,34 @@ def _optuna():
     return optuna
 
 
-def open_study(out: Path, settings: StudySettings):
-    """The study in ``out`` (created, or loaded when its journal exists and its settings match:
-    otherwise refused, the journal unchanged)."""
+def check_study(out: Path, settings: StudySettings) -> Any | None:
+    """The study in ``out`` when its journal exists and its settings match ``settings``; None
+    when there is no journal yet. A journal that cannot be read, or holds a study with other
+    settings, is refused (``ValueError``, one line). Nothing is written."""
+    journal = out / JOURNAL
+    if not journal.is_file():
+        return None
+    study = load_journal(journal)
+    stored = study.user_attrs.get("settings")
+    now = json.loads(json.dumps(settings.fingerprint()))
+    if stored != now:
+        diff = sorted(k for k in now if stored is None or stored.get(k) != now.get(k))
+        raise ValueError(f"{out}: holds a study with other settings ({', '.join(diff)} differ); "
+                         "resume it with the same command, or use another --out")
+    return study
+
+
+def open_study(out: Path, settings: StudySettings, study: Any | None = None) -> Any:
+    """The study ``study`` that :func:`check_study` accepted in ``out``, or (None) a new one
+    created there (its journal written); either way with the base trial queued unless it ran."""
+    if study is not None:
+        _enqueue_base(study, settings)  # again, if a stopped run cut it short
+        return study
     optuna = _optuna()
     from optuna.storages import JournalStorage
     from optuna.storages.journal import JournalFileBackend
 
-    journal = out / JOURNAL
-    if journal.is_file():
-        study = load_journal(journal)
-        stored = study.user_attrs.get("settings")
-        now = json.loads(json.dumps(settings.fingerprint()))
-        if stored != now:
-            diff = sorted(k for k in now if stored is None or stored.get(k) != now.get(k))
-            raise ValueError(f"{out}: holds a study with other settings ({', '.join(diff)} differ); "
-                             "resume it with the same command, or use another --out")
-        _enqueue_base(study, settings)  # again, if a stopped run cut it short
-        return study
-    storage = JournalStorage(JournalFileBackend(str(journal)))
+    storage = JournalStorage(JournalFileBackend(str(out / JOURNAL)))
     study = optuna.create_study(study_name=STUDY_NAME, storage=storage,
                                 directions=list(OBJECTIVES[settings.objective][1]))
     study.set_user_attr("settings", json.loads(json.dumps(settings.fingerprint())))

@@ -116,15 +116,21 @@ def _serve(conn: Any) -> None:
         conn.send(run_trial(task))
 
 
+def require_ray() -> Any:
+    """The ``ray`` module, or a one-line refusal when it is not installed."""
+    try:
+        import ray
+    except ImportError:
+        raise ValueError("--ray needs Ray: pip install \"wfviz[ray]\"") from None
+    return ray
+
+
 class RayPool:
     """Trials as Ray tasks (``ray.init(address)``; a local Ray when ``address`` is None), at
     most ``workers`` at a time."""
 
     def __init__(self, workers: int, address: str | None) -> None:
-        try:
-            import ray
-        except ImportError:
-            raise ValueError("--ray needs Ray: pip install \"wfviz[ray]\"") from None
+        ray = require_ray()
         self._ray = ray
         if not ray.is_initialized():
             ray.init(address=address, include_dashboard=False, log_to_driver=False,
