@@ -3,6 +3,7 @@
 from __future__ import annotations
 
 import functools
+import re
 from collections import defaultdict
 from pathlib import Path
 
@@ -16,8 +17,11 @@ from conftest import needs_vulkan, wfviz as run_wfviz
 from wfviz.compare import Disagreements, parse_run
 from wfviz.compare.session import compare
 from wfviz.compare.differences import clusters
+from wfviz.compare.parameters import flatten
+from wfviz.config import load_config
 from wfviz.evaluate import read_points
 from wfviz.io.clip import open_clip
+from wfviz.trackers import config_class
 
 CLIP = "synth:fov70-four-targets:0"
 STOP = "70"
@@ -44,18 +48,47 @@ def _rows(path: Path) -> dict[str, list[tuple[int, object]]]:
     return out
 
 
-def _matched(tracks: dict, truth: dict, gate: float = 3.0) -> dict[int, set[int]]:
-    """Per frame, the targets a run's confirmed tracks match (own assignment, for the test)."""
-    out = {}
+def _pairs(tracks: dict, truth: dict, gate: float = 3.0) -> dict[int, dict[int, int]]:
+    """Per frame, {track: target} of a run's confirmed tracks (own assignment, for the test)."""
+    out: dict[int, dict[int, int]] = {}
     for f, gt in truth.items():
         tr = tracks.get(f, [])
         if not gt or not tr:
-            out[f] = set()
+            out[f] = {}
             continue
         d = np.hypot(*(np.array([p[1:] for p in gt])[:, None, :] - np.array([p[1:] for p in tr])[None]).transpose(2, 0, 1))
         r, c = linear_sum_assignment(np.where(d <= gate, d, 1e9))
-        out[f] = {gt[i][0] for i, j in zip(r, c) if d[i, j] <= gate}
+        out[f] = {tr[j][0]: gt[i][0] for i, j in zip(r, c) if d[i, j] <= gate}
     return out
+
+
+def _matched(tracks: dict, truth: dict, gate: float = 3.0) -> dict[int, set[int]]:
+    """Per frame, the targets a run's confirmed tracks match (own assignment, for the test)."""
+    return {f: set(m.values()) for f, m in _pairs(tracks, truth, gate).items()}
+
+
+def _column(path: Path, entity: str, column: str) -> dict[int, list]:
+    """frame -> the values of ``column`` (e.g. ``LineStrips2D:colors``) logged at ``entity``."""
+    out: dict[int, list] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == entity and not chunk.is_static:
+            for row in chunk.to_record_batch().to_pylist():
+                out[row["frame"]] = row[column]
+    return out
+
+
+def _rgba(color: tuple[int, int, int]) -> int:
+    """A colour as Rerun stores it (0xRRGGBBAA, opaque)."""
+    r, g, b = color
+    return r << 24 | g << 16 | b << 8 | 255
+
+
+def _text(path: Path, entity: str) -> str:
+    """The text of the static ``TextDocument`` at ``entity``."""
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path == entity and chunk.is_static:
+            return chunk.to_record_batch().column("TextDocument:text").to_pylist()[0][0]
+    raise AssertionError(f"no {entity}")
 
 
 @pytest.fixture(scope="module")
@@ -68,6 +101,7 @@ def two_runs(tmp_path_factory: pytest.TempPathFactory) -> Path:
     assert "truth: the synthetic clip's own" in proc.stdout
     assert "gewc " in proc.stdout and "strict " in proc.stdout and "MOTA" in proc.stdout
     assert "where Pd went" in proc.stdout and "explain" not in proc.stdout  # files only with --explain
+    assert re.search(r"^ +detection\.k_sigma +4\.0 +6\.5$", proc.stdout, re.M), proc.stdout
     return d
 
 
@@ -112,6 +146,96 @@ def test_missed_marks_where_the_runs_match_different_targets(two_runs: Path) -> 
     assert {f for f, _ in log} >= set(onsets)
     text = " ".join(str(t) for _, t in log)
     assert "missed by" in text and ("strict" in text or "gewc" in text)
+
+
+def test_tracks_coloured_by_the_target_they_match(two_runs: Path) -> None:
+    """With truth, a confirmed track matched to a target is drawn in that target's colour in
+    every run, whatever its id there; a track that has matched no target yet has a colour no
+    target has."""
+    from wfviz.record.colors import target_color
+
+    shown, _ = open_clip(CLIP).truth_points()
+    shown = {f: v for f, v in shown.items() if f < int(STOP)}
+    targets = {tid for pts in shown.values() for tid, _, _ in pts}
+    palette = {_rgba(target_color(t)) for t in targets}
+    rrd = two_runs / "out" / "cmp.rrd"
+    seen: dict[str, dict[int, set[int]]] = {}  # run -> target -> the track ids drawn in its colour
+    for label in ("gewc", "strict"):
+        pairs = _pairs(read_points(two_runs / "out" / f"cmp-{label}.csv", "track_id", True), shown)
+        ids = _column(rrd, f"/runs/{label}/camera/tracks", "LineStrips2D:class_ids")
+        colors = _column(rrd, f"/runs/{label}/camera/tracks", "LineStrips2D:colors")
+        ever: set[int] = set()
+        seen[label] = defaultdict(set)
+        for f in sorted(shown):
+            ever |= set(pairs[f])
+            for tid, color in zip(ids[f], colors[f]):
+                if tid in pairs[f]:
+                    assert color == _rgba(target_color(pairs[f][tid])), (label, f, tid)
+                    seen[label][pairs[f][tid]].add(tid)
+                elif tid not in ever:
+                    assert color not in palette, (label, f, tid)
+    both = set(seen["gewc"]) & set(seen["strict"])
+    assert len(both) >= 2, seen
+    # the point of it: some target is another track in each run, yet has one colour
+    assert any(seen["gewc"][t] != seen["strict"][t] for t in both), seen
+
+
+def test_misses_drawn_over_the_defects_and_larger(two_runs: Path) -> None:
+    """The missed marks are larger than the other marks and than the sensor defects' dots, drawn
+    over both, in a colour apart from the defects'."""
+    rrd = two_runs / "out" / "cmp.rrd"
+
+    def first(entity: str, column: str) -> float:
+        return next(v[0] for v in _column(rrd, entity, column).values() if v)
+
+    bad = "/runs/gewc/camera/bad_pixels"
+    assert any(_column(rrd, bad, "Points2D:positions").values()), "no defect flagged: nothing to check"
+    miss_r, miss_order = first("/compare/marks/missed", "Points2D:radii"), first("/compare/marks/missed",
+                                                                                 "Points2D:draw_order")
+    assert miss_r >= 3 * first(bad, "Points2D:radii") and miss_order > first(bad, "Points2D:draw_order")
+    for other in ("false_track", "switch"):
+        assert miss_r > first(f"/compare/marks/{other}", "Points2D:radii")
+        assert miss_order > first(f"/compare/marks/{other}", "Points2D:draw_order")
+    rgb = [np.array([(c >> s) & 255 for s in (24, 16, 8)])
+           for c in (first("/compare/marks/missed", "Points2D:colors"), first(bad, "Points2D:colors"))]
+    assert np.abs(rgb[0] - rgb[1]).sum() > 100, rgb
+    # each run's camera view keeps its defects' entity but hides it (a tick shows it)
+    reader = RrdReader(rrd)
+    names: dict[str, str] = {}
+    hidden: dict[str, list] = {}
+    for chunk in reader.stream(store=reader.blueprints()[0]):
+        b = chunk.to_record_batch()
+        if "ViewBlueprint:display_name" in b.schema.names:
+            names[chunk.entity_path] = b.column("ViewBlueprint:display_name").to_pylist()[0][0]
+        if "EntityBehavior:visible" in b.schema.names:
+            hidden[chunk.entity_path] = b.column("EntityBehavior:visible").to_pylist()
+    views = {name: path for path, name in names.items()}
+    assert hidden == {f"{views[label]}/ViewContents/overrides/runs/{label}/camera/bad_pixels/visualizers": [[False]]
+                      for label in ("gewc", "strict")}, hidden
+
+
+def test_parameters_that_differ_in_the_summary_and_the_recording(tmp_path: Path) -> None:
+    """Two configurations of one tracker differing in tracking.p_detect, and a run of another
+    tracker: the summary and the recording list p_detect with both values, and nothing else;
+    the other tracker's parameters are not compared."""
+    (tmp_path / "a.toml").write_text("[tracking]\np_detect = 0.7\n")
+    (tmp_path / "b.toml").write_text("[tracking]\np_detect = 0.95\n")
+    proc = wfviz("compare", "synth:fov70-four-targets:0", "--run", "a=gewc:a.toml", "--run", "b=gewc:b.toml",
+                 "--run", "fusion", "--stop", "12", "--no-images", "-o", "c.rrd", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    out = proc.stdout
+    assert "parameters that differ between the gewc runs:" in out, out
+    block = out.split("parameters that differ between the gewc runs:")[1].split("\n\n")[0].splitlines()
+    assert block[1].split() == ["parameter", "a", "b"]
+    assert [line.split() for line in block[2:] if not line.startswith("different")] == [
+        ["tracking.p_detect", "0.7", "0.95"]], block
+    assert "different trackers, parameters not compared: fusion (fusion)" in out
+    doc = _text(tmp_path / "c.rrd", "/compare/parameters")
+    assert "| `tracking.p_detect` | `0.7` | `0.95` |" in doc, doc
+    assert sum(line.startswith("| `") for line in doc.splitlines()) == 1, doc
+    assert "**fusion**" in doc
+    scores = _text(tmp_path / "c.rrd", "/compare/summary")
+    assert re.search(r"tracking\.p_detect +0\.7 +0\.95", scores), scores
 
 
 def test_disagreements_without_truth() -> None:
@@ -206,6 +330,18 @@ def test_study_top_trials_and_defaults(tmp_path: Path) -> None:
     assert proc.returncode == 0, proc.stderr
     proc = wfviz("compare", "synth:lowsnr-tbd:0", "--study", "study", "--top", "2", "-o", "c.rrd", cwd=tmp_path)
     assert proc.returncode == 0, proc.stderr
+    # the trials' parameters against the defaults (the study samples them: they differ)
+    head = re.search(r"^parameters that differ between the tbd runs:\n +parameter +(trial-\d+) +(trial-\d+) +defaults$",
+                     proc.stdout, re.M)
+    assert head, proc.stdout
+    rows = {}
+    for line in proc.stdout[head.end():].split("\n\n")[0].strip("\n").splitlines():
+        key, *values = line.split()
+        rows[key] = values
+    best = flatten(load_config(tmp_path / "study" / "best.toml", config_class("tbd")))  # the first trial shown
+    defaults = flatten(config_class("tbd")())
+    assert rows and all(best[k] == v[0] and defaults[k] == v[2] for k, v in rows.items()), rows
+    assert {k for k in best if best[k] != defaults[k]} <= set(rows)
     rows = _rows(tmp_path / "c.rrd")
     roots = {p.split("/")[2] for p in rows if p.startswith("/runs/")}
     assert "defaults" in roots and len(roots) == 3 and all(r == "defaults" or r.startswith("trial-") for r in roots)

@@ -1,5 +1,5 @@
-"""What a comparison (``wfviz compare``) found: every run's outcome, where its Pd went and the
-disagreements (:class:`CompareSummary`), built from what the comparison's sinks published at the
+"""What a comparison (``wfviz compare``) found: every run's outcome, the parameters in which the
+runs differ, where each run's Pd went and the disagreements (:class:`CompareSummary`), built from what the comparison's sinks published at the
 end (:func:`summarize`), and its closing tables (:func:`format_summary`)."""
 
 from __future__ import annotations
@@ -7,6 +7,7 @@ from __future__ import annotations
 from dataclasses import dataclass
 from pathlib import Path
 
+from wfviz.compare.parameters import ParameterDifferences, format_differences, parameter_differences
 from wfviz.compare.runs import RunSpec
 from wfviz.evaluate import EvalResult
 from wfviz.explain.report import ExplainSummary
@@ -40,7 +41,8 @@ class RunOutcome:
 @dataclass(frozen=True)
 class CompareSummary:
     """What a comparison did: frames, wall seconds, every run's outcome, frames with a
-    disagreement and marks by kind, and the signal that stopped it (None: the end)."""
+    disagreement and marks by kind, the signal that stopped it (None: the end) and the
+    parameters in which the runs differ (None: not known)."""
 
     frames: int
     seconds: float
@@ -48,6 +50,7 @@ class CompareSummary:
     disagreement_frames: int
     marks: dict[str, int]
     signal: int | None = None
+    parameters: ParameterDifferences | None = None
 
 
 @dataclass(frozen=True)
@@ -73,7 +76,7 @@ def summarize(runs: list[RunSpec], groups: list[int], end: RunEnd, tracks: list[
                                 end.facts.get(EvalResult, i), groups[i], end.facts.get(ExplainSummary, i),
                                 explain[i] if explain else None) for i, r in enumerate(runs))
     return CompareSummary(end.frames, end.seconds if seconds is None else seconds, outcomes, c.disagreement_frames,
-                          c.marks, end.signum)
+                          c.marks, end.signum, parameter_differences(runs))
 
 
 def _num(v: float | None, fmt: str = ".3f") -> str:
@@ -112,8 +115,8 @@ def format_causes(summary: CompareSummary) -> str:
 
 
 def format_summary(summary: CompareSummary) -> str:
-    """The closing tables: a row per run (scores when truth was given), where each run's Pd went
-    (with truth), then the disagreements."""
+    """The closing tables: a row per run (scores when truth was given), the parameters in which
+    the runs differ, where each run's Pd went (with truth), then the disagreements."""
     scored = any(r.scores is not None for r in summary.runs)
     head = ["run", "tracker", "ms/frame", "confirmed"] + (
         ["MOTA", "IDF1", "Pd", "FA/frame", "switches", "CLE px"] if scored else [])
@@ -131,6 +134,8 @@ def format_summary(summary: CompareSummary) -> str:
     kinds = ", ".join(f"{k} {n}" for k, n in summary.marks.items() if n) or "none"
     rules = sorted({r.scores.match_rule for r in summary.runs if r.scores is not None})
     causes = format_causes(summary)
+    params = format_differences(summary.parameters) if summary.parameters is not None else ""
     return "\n".join([line(head), *map(line, rows), *(f"matched to truth: {rule}" for rule in rules),
+                      *(["", params] if params else []),
                       *(["", causes, ""] if causes else []),
                       f"frames with a disagreement: {summary.disagreement_frames} of {summary.frames} ({kinds})"])

@@ -1,7 +1,9 @@
 """``wfviz compare``'s recording: every run under ``runs/<label>/`` (the paths of a single
 recording below that root, by the run's own adapter), the raw frame once at ``camera/image``,
 and the comparison under ``compare/`` (metrics with a series per run, disagreement marks and
-log, the closing table). See docs/recording.md."""
+log, the parameters in which the runs differ, the closing table). With truth, each run's tracks
+are coloured by the truth target they match (:class:`~wfviz.record.colors.TargetPalette`), so a
+target has one colour in every run. See docs/recording.md."""
 
 from __future__ import annotations
 
@@ -15,13 +17,15 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from wfviz.compare.differences import KINDS, FrameComparison
+from wfviz.compare.parameters import differences_markdown, parameter_differences
 from wfviz.compare.runs import RunSpec
 from wfviz.compare.summary import CompareSummary, format_summary, summarize
 from wfviz.evaluate import format_table
 from wfviz.io.frames import Frame
 from wfviz.io.outputs import replace_into, temp_path
 from wfviz.record import recorder_class
-from wfviz.record.evidence import FALSE_TRACK_COLOR, MARK_RADIUS, MISSED_COLOR
+from wfviz.record.colors import TargetPalette
+from wfviz.record.evidence import DRAW_MARKS, DRAW_MISSES, FALSE_TRACK_COLOR, MARK_RADIUS, MISS_RADIUS, MISSED_COLOR
 from wfviz.record.images import ImageLog
 from wfviz.record.recorder import APPLICATION_ID, BATCHER, ColumnBuffer, pixel_centres
 from wfviz.record_options import RecorderOptions
@@ -33,6 +37,8 @@ RUN_COLORS = ((31, 160, 255), (255, 127, 14), (44, 200, 80), (230, 60, 60), (170
               (240, 120, 200), (190, 190, 40), (23, 210, 210), (150, 150, 150))
 MARK_COLORS = {"missed": MISSED_COLOR, "false_track": FALSE_TRACK_COLOR, "switch": (255, 0, 255),
                "unmatched": FALSE_TRACK_COLOR}  # a single recording's explanation marks look the same
+#: each mark's radius and draw order: misses larger and over the others (and the defects' dots)
+MARK_STYLE = {kind: (MISS_RADIUS, DRAW_MISSES) if kind == "missed" else (MARK_RADIUS, DRAW_MARKS) for kind in KINDS}
 METRICS = (("pd", "Pd per frame"), ("false_tracks", "False tracks"), ("cle", "CLE (px)"),
            ("tracks", "Confirmed tracks"), ("ms", "ms per frame"))
 
@@ -42,11 +48,13 @@ def run_color(i: int) -> tuple[int, int, int]:
 
 
 def compare_blueprint(labels: list[str], image_of: list[str], truth: bool) -> rrb.Blueprint:
-    """The runs' camera views side by side (raw frame, the run's overlays, the marks), their
-    residuals in a second tab, the metrics with one series per run, the disagreement log and
-    the closing table. ``image_of[i]``: the run whose residual run ``i`` shows."""
+    """The runs' camera views side by side (raw frame, the run's overlays but its sensor
+    defects, which a tick in the blueprint panel shows, the marks), their residuals in a second
+    tab, the metrics with one series per run, the disagreement log, the closing table and the
+    parameters in which the runs differ. ``image_of[i]``: the run whose residual run ``i`` shows."""
     cams = [rrb.Spatial2DView(origin="/", name=label, contents=[
-        "/camera/image", f"/runs/{label}/camera/**", "/compare/marks/**"]) for label in labels]
+        "/camera/image", f"/runs/{label}/camera/**", "/compare/marks/**"],
+        overrides={f"/runs/{label}/camera/bad_pixels": rrb.EntityBehavior(visible=False)}) for label in labels]
     residuals = [rrb.Spatial2DView(origin="/", name=f"{label}: background-suppressed", contents=[
         f"/runs/{src}/suppressed/**", f"/runs/{label}/camera/detections", f"/runs/{label}/camera/predictions",
         "/compare/marks/**"]) for label, src in zip(labels, image_of)]
@@ -61,6 +69,7 @@ def compare_blueprint(labels: list[str], image_of: list[str], truth: bool) -> rr
                 rrb.Tabs(*plots[:half]), rrb.Tabs(*plots[half:]),
                 rrb.Tabs(rrb.TextLogView(origin="compare/log", name="Disagreements"),
                          rrb.TextDocumentView(origin="compare/summary", name="Scores"),
+                         rrb.TextDocumentView(origin="compare/parameters", name="Parameters"),
                          *[rrb.TextLogView(origin=f"runs/{label}/log", name=f"{label} log") for label in labels]),
             ),
             row_shares=[3, 2],
@@ -76,7 +85,8 @@ class CompareRecorder(BaseSink):
     reading each frame's :class:`FrameComparison` (the :class:`~wfviz.compare.session.DisagreementSink`'s)
     and every run's :class:`FrameTruth` (its :class:`~wfviz.sinks.ScoreSink`'s, with truth) from
     what the sinks publish. ``options``: the source shown and the images (as a single
-    recording's); ``truth``: truth is given (the metrics against it are shown)."""
+    recording's); ``truth``: truth is given (the metrics against it are shown, the tracks are
+    coloured by the target they match)."""
 
     def __init__(self, path: Path, runs: list[RunSpec], groups: list[int], options: RecorderOptions, *,
                  truth: bool = False) -> None:
@@ -96,12 +106,16 @@ class CompareRecorder(BaseSink):
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self.runs: list[Any] = []
+        self.palettes = [TargetPalette() for _ in runs] if truth else []
         for i, (r, g) in enumerate(zip(runs, groups)):
             cls = recorder_class(r.tracker)
             own = replace(options, source=f"{options.source} ({r.source})", config_text=r.config_text,
                           trail_length=r.config.tracking.trail_length, live=None)
-            self.runs.append(cls(None, r.tracker, own, stream=self.rec, root=f"runs/{r.label}", raw_image=False,
-                                 shared_images=SHARED_IMAGES if g != i else frozenset()))
+            sub = cls(None, r.tracker, own, stream=self.rec, root=f"runs/{r.label}", raw_image=False,
+                      shared_images=SHARED_IMAGES if g != i else frozenset())
+            if truth:
+                sub.color_of = self.palettes[i].color
+            self.runs.append(sub)
         self.metrics = tuple(m for m, _ in METRICS if truth or m in ("tracks", "ms"))
         for m in self.metrics:
             for i, label in enumerate(self.labels):
@@ -110,6 +124,8 @@ class CompareRecorder(BaseSink):
         self.rec.log("compare/runs", rr.TextDocument("\n".join(
             f"- **{r.label}**: {r.tracker}, {r.source}" + (f" (front end shared with {self.labels[g]})" if g != i else "")
             for i, (r, g) in enumerate(zip(runs, groups))), media_type=rr.MediaType.MARKDOWN), static=True)
+        self.rec.log("compare/parameters", rr.TextDocument(differences_markdown(parameter_differences(runs)),
+                                                           media_type=rr.MediaType.MARKDOWN), static=True)
         self._closed = False
 
     def step(self, step: Step) -> None:
@@ -123,14 +139,17 @@ class CompareRecorder(BaseSink):
 
     def log(self, frame: Frame, results: tuple[Any, ...], cmp: FrameComparison, ms: tuple[float, ...],
             truths: list[FrameTruth | None]) -> None:
-        """One frame: the raw image (see :class:`ImageLog`), every run's stages (and its truth
-        and errors, with truth), the marks, the disagreements that began or ended, the metrics."""
+        """One frame: the raw image (see :class:`ImageLog`), every run's stages (with truth: its
+        tracks coloured by the targets they match, its truth and errors), the marks, the
+        disagreements that began or ended, the metrics."""
         rec = self.rec
         rec.set_time("frame", sequence=frame.index)
         rec.set_time("time", duration=frame.time)
         if self.images.begin_frame(self.frames_logged, frame.index, frame.time):
             self.images.log("camera/image", frame.image)
-        for sub, result, truth in zip(self.runs, results, truths):
+        for i, (sub, result, truth) in enumerate(zip(self.runs, results, truths)):
+            if truth is not None and self.palettes:
+                self.palettes[i].update((track, target) for track, target, _ in truth.errors.matches)
             sub.log(frame, result)
             if truth is not None:
                 sub.log_truth(truth.shown, truth.hidden, truth.errors)
@@ -138,7 +157,8 @@ class CompareRecorder(BaseSink):
             ms_ = [m for m in cmp.marks if m.kind == kind]
             rec.log(f"compare/marks/{kind}", rr.Points2D(
                 np.array([(m.x, m.y) for m in ms_], dtype=np.float32).reshape(-1, 2),
-                labels=[m.text for m in ms_], colors=MARK_COLORS[kind], radii=MARK_RADIUS, show_labels=False))
+                labels=[m.text for m in ms_], colors=MARK_COLORS[kind], radii=MARK_STYLE[kind][0],
+                draw_order=MARK_STYLE[kind][1], show_labels=False))
         f, t = frame.index, frame.time
         for m in cmp.began:
             self.columns.text("compare/log", f, t, m.text, "WARN")

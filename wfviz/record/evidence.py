@@ -14,7 +14,7 @@ from typing import Any, Protocol
 import numpy as np
 import rerun as rr
 
-from wfviz.record.colors import track_color
+from wfviz.record.colors import target_color, track_color
 from wfviz.explain.types import MISSES, Cause, FalseCause, FrameExplanation
 from wfviz.tracking.decision import Verdicts
 from wfviz.tracking.tracks import TrackState
@@ -38,6 +38,7 @@ class Recorder(Protocol):
 MISSED_COLOR: Color = (255, 40, 40)
 FALSE_TRACK_COLOR: Color = (255, 160, 0)
 MARK_RADIUS = 6.0
+MISS_RADIUS = 8.0  # px: a miss, larger than the other marks and far larger than a defect's dot (2 px)
 CAUSE_RADIUS = 4.5  # px: a ring inside the marks, around the detection and the truth point
 
 #: 2-D draw order of the camera overlays (higher on top; Rerun's defaults: images -10,
@@ -45,6 +46,7 @@ CAUSE_RADIUS = 4.5  # px: a ring inside the marks, around the detection and the 
 DRAW_SEARCH_REGION = 0.5
 DRAW_BAD_PIXELS = 24.0
 DRAW_MARKS = 25.0
+DRAW_MISSES = 25.5  # over the other marks and the defects, under the cause rings and the tracks
 DRAW_CAUSES = 26.0
 DRAW_CLUTTER = 28.0
 DRAW_DETECTIONS = 30.0
@@ -105,12 +107,6 @@ def false_classes() -> list[tuple[int, str, Color]]:
 def test_slug(name: str) -> str:
     """A test's name as an entity path part: "motion: T²" -> "motion_t2"."""
     return re.sub(r"[^a-z0-9]+", "_", name.replace("²", "2").lower()).strip("_") or "test"
-
-
-def target_color(target_id: int) -> Color:
-    """A truth target's series colour (hues apart from the tracks' of the same number)."""
-
-    return track_color(target_id * 7 + 3)
 
 
 class TestLog:
@@ -259,7 +255,7 @@ class ExplanationLog:
         missed = [k for k, t in enumerate(truth) if t.cause in MISSES]
         self._points("camera/misses", rr.Points2D(
             xy[missed], class_ids=1, labels=[f"T{truth[k].target_id} missed: {labels[k].split(' ', 1)[1]}" for k in missed],
-            colors=MISSED_COLOR, radii=MARK_RADIUS, draw_order=DRAW_MARKS, show_labels=False), empty=not missed)
+            colors=MISSED_COLOR, radii=MISS_RADIUS, draw_order=DRAW_MISSES, show_labels=False), empty=not missed)
         false = expl.false
         self._points("camera/false_tracks", rr.Points2D(
             np.array([(f.x, f.y) for f in false], dtype=np.float32).reshape(-1, 2),

@@ -7,7 +7,7 @@ import rerun as rr
 import rerun.blueprint as rrb
 
 from wfviz.record.evidence import DRAW_TRACKS
-from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, track_color, track_colors
+from wfviz.record.recorder import DETECTION_COLOR, Recorder, class_ids, track_colors
 from wfviz.trackers.fusion import FusionResult
 from wfviz.tracking import EventKind
 
@@ -50,15 +50,15 @@ class FusionRecorder(Recorder):
                 grey=f.grey.astype(np.float64), phi=phi, cost=cost, track=result.assigned.astype(np.int64),
                 rect_width=np.linalg.norm(f.rects[:, 1] - f.rects[:, 0], axis=1),
                 rect_height=np.linalg.norm(f.rects[:, 3] - f.rects[:, 0], axis=1)))
-        colors = [track_color(int(t)) if t >= 0 else DETECTION_COLOR[:3] for t in result.assigned]
+        colors = [self.color_of(int(t)) if t >= 0 else DETECTION_COLOR[:3] for t in result.assigned]
         rec.log("camera/rects", rr.LineStrips2D(
             [np.vstack([r, r[:1]]) for r in f.rects], colors=colors, radii=0.3))
         m = result.matches
         ids = [x.track_id for x in m]
         rec.log("camera/measurements", rr.Points2D(
             np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
-            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, draw_order=DRAW_TRACKS,
-            show_labels=False))
+            class_ids=class_ids(ids), colors=track_colors(ids, color_of=self.color_of), radii=0.5,
+            draw_order=DRAW_TRACKS, show_labels=False))
         a = np.linspace(0, 2 * np.pi, 73)
         r = result.recover_radius
         lost = result.lost if result.global_detection else ()

@@ -64,8 +64,8 @@ class GEWCRecorder(Recorder):
         ids = [x.track_id for x in m]
         rec.log("camera/centroids", rr.Points2D(
             np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
-            class_ids=class_ids(ids), colors=track_colors(ids), radii=0.5, draw_order=DRAW_TRACKS,
-            show_labels=False))
+            class_ids=class_ids(ids), colors=track_colors(ids, color_of=self.color_of), radii=0.5,
+            draw_order=DRAW_TRACKS, show_labels=False))
         confirmed = result.confirmed_ids
         for x in m:
             if x.track_id in confirmed:

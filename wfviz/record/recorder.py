@@ -5,7 +5,7 @@ from __future__ import annotations
 import functools
 import warnings
 from collections import deque
-from collections.abc import Sequence
+from collections.abc import Callable, Sequence
 from pathlib import Path
 from typing import Any
 
@@ -38,7 +38,9 @@ DETECTION_COLOR = (255, 200, 0, 255)
 TRUTH_COLOR = (255, 255, 255, 200)
 TRUTH_HIDDEN_COLOR = (255, 255, 255, 70)
 TRUTH_RADIUS = -2.0  # UI points (a fixed size on screen): zoomed in, the prediction and the detection show around it
-BAD_PIXEL_COLOR = (255, 60, 60)
+#: a sensor defect's dot: dull and small, never taken for a miss mark (bright red, 8 px)
+BAD_PIXEL_COLOR = (150, 70, 70)
+BAD_PIXEL_RADIUS = 2.0
 HORIZON_COLOR, HORIZON_IGNORED_COLOR = (0, 255, 120), (120, 120, 120)
 NOT_SEARCHED_COLOR = (30, 70, 255, 140)
 #: defect pixels replaced in a frame above this share of it: a WARN line (once per onset)
@@ -59,12 +61,13 @@ def class_ids(track_ids: list[int]) -> np.ndarray:
     return ((np.asarray(track_ids, dtype=np.int64).reshape(-1) - 1) % 65535 + 1).astype(np.uint16)
 
 
-def track_colors(ids: list[int], confirmed: list[bool] | None = None) -> np.ndarray:
-    """(N, 4) uint8 RGBA: each track's colour, ``TENTATIVE_COLOR`` where not confirmed.
-    (Arrays, not lists of tuples: rerun converts them 30x faster.)"""
+def track_colors(ids: list[int], confirmed: list[bool] | None = None,
+                 color_of: Callable[[int], tuple[int, int, int]] = track_color) -> np.ndarray:
+    """(N, 4) uint8 RGBA: each track's colour (``color_of``), ``TENTATIVE_COLOR`` where not
+    confirmed. (Arrays, not lists of tuples: rerun converts them 30x faster.)"""
     out = np.empty((len(ids), 4), dtype=np.uint8)
     for k, i in enumerate(ids):
-        out[k] = (*track_color(i), 255) if confirmed is None or confirmed[k] else TENTATIVE_COLOR
+        out[k] = (*color_of(i), 255) if confirmed is None or confirmed[k] else TENTATIVE_COLOR
     return out
 
 
@@ -186,7 +189,7 @@ def log_geometry(rec: rr.RecordingStream, front: FrontEndResult) -> None:
     if front.bad_pixels_changed:
         bp = front.bad_pixels
         rec.log("camera/bad_pixels", rr.Points2D(bp[:, ::-1].astype(np.float32) if len(bp) else np.zeros((0, 2)),
-                                                 class_ids=1, colors=BAD_PIXEL_COLOR, radii=2.0,
+                                                 class_ids=1, colors=BAD_PIXEL_COLOR, radii=BAD_PIXEL_RADIUS,
                                                  draw_order=DRAW_BAD_PIXELS, show_labels=False))
     if front.horizon_updated:
         h = front.horizon
@@ -384,6 +387,9 @@ class Recorder:
         self._trail_length = options.trail_length
         self._labelled: set[int] = set()
         self.confirmed_ids: set[int] = set()
+        #: a confirmed track's colour in the camera overlays (``wfviz compare`` with truth: the
+        #: colour of the truth target it matches, :class:`~wfviz.record.colors.TargetPalette`)
+        self.color_of: Callable[[int], tuple[int, int, int]] = track_color
         self.frames_logged = 0
         self.columns = ColumnBuffer(self.rec)
         self._now = (0, 0.0)  # (frame, time) being logged
@@ -680,7 +686,7 @@ class Recorder:
         preds = result.predictions
         ids = [p.track_id for p in preds]
         conf = np.array([p.confirmed for p in preds], dtype=bool)
-        colors = track_colors(ids, conf.tolist())
+        colors = track_colors(ids, conf.tolist(), self.color_of)
         geo = np.array([(p.x, p.y, p.half_w, p.half_h) for p in preds], dtype=np.float32).reshape(-1, 4)
         labels = prediction_labels(preds, geo[:, :2])
         cids = class_ids(ids)
@@ -716,7 +722,7 @@ class Recorder:
         strips = [np.array(self._trails[i], dtype=np.float32) for i in conf]
         self.rec.log("camera/tracks", rr.LineStrips2D(
             strips, class_ids=class_ids(conf), labels=[str(i) for i in conf],
-            colors=track_colors(conf), radii=0.6, show_labels=False))
+            colors=track_colors(conf, color_of=self.color_of), radii=0.6, show_labels=False))
 
     def _ensure_labels(self, confirmed_ids: list[int]) -> None:
         """Static annotation context: a stable colour and label per confirmed track id."""
