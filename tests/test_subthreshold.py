@@ -144,3 +144,21 @@ def test_each_confirmed_tracks_reads_are_recorded(tmp_path) -> None:
     assert res.exit_code == 0, res.output
     paths = {str(ch.entity_path) for ch in RrdReader(out).stream()}
     assert any(p.startswith("/tests/") and p.endswith("/sub_threshold_evidence") for p in paths)
+
+
+def test_a_deletion_says_what_its_read_added() -> None:
+    """A target that vanishes: its confirmed track is deleted, and the deletion's message gives
+    the last miss's score and what the read at the prediction added."""
+    from wfviz.tracking.tracks import EventKind
+
+    rng = np.random.default_rng(0)
+    yy, xx = np.mgrid[0:H, 0:W]
+    trk = make_tracker("gewc")
+    messages = []
+    for k in range(45):
+        f = 1000.0 + rng.normal(0.0, SIGMA, (H, W))
+        if k < 30:
+            f += 10.0 * SIGMA * np.exp(-((xx - 20.0 - k) ** 2 + (yy - 40.0) ** 2) / (2 * 0.8 ** 2))
+        r = trk.step(Frame(k, k / 25.0, np.clip(f, 0, 65535).astype(np.uint16)))
+        messages += [e.message for e in r.events if e.kind == EventKind.DELETED and e.frame >= 30]
+    assert any("its read at the prediction" in m and "σ" in m for m in messages), messages
