@@ -10,7 +10,7 @@ from pathlib import Path
 import numpy as np
 import pytest
 
-from conftest import invoke
+from conftest import invoke, rows, wfviz
 from test_backfill import _mover
 from wfviz.evaluate import evaluate_points
 from wfviz.hota import ALPHAS, hota, point_similarity
@@ -149,3 +149,19 @@ def test_eval_and_track_print_hota(tmp_path: Path):
     assert 0 < d["hota"] < 1 and 0 < d["det_a"] < 1 and 0 < d["ass_a"] <= 1  # latency, centre error
     assert f"HOTA {d['hota']:.3f} (DetA {d['det_a']:.3f}, AssA {d['ass_a']:.3f})" in e.output
     assert printed == f"{d['hota']:.3f}"  # the same score printed by track --truth
+
+
+def test_tune_objective_hota_chooses_the_highest_mean_hota(tmp_path: Path):
+    (tmp_path / "space.toml").write_text("[detection]\nk_sigma = { low = 3.0, high = 6.0 }\n"
+                                         "[tracking]\np_detect = { low = 0.6, high = 0.98 }\n")
+    clips = ["synth:fov70-maneuver:0", "synth:uniform-50hz:0"]
+    proc = wfviz("tune", *clips, "--out", "h", "--space", "space.toml", "--stop", "16", "--workers", "1",
+                 "--trials", "3", "--objective", "hota", cwd=tmp_path)
+    assert proc.returncode == 0, proc.stderr
+    every = rows(tmp_path / "h" / "trials.csv")
+    for r in every:
+        per_clip = [float(r[f"{c.split(':')[1]}-0_hota"]) for c in clips]
+        assert 0 < float(r["tune_hota"]) == pytest.approx(sum(per_clip) / 2)
+    best = max(every, key=lambda r: (float(r["tune_hota"]), -int(r["trial"])))
+    assert (tmp_path / "h" / "best.toml").read_text().startswith(f"# wfviz tune: trial {best['trial']} of")
+    assert "objective: maximize hota" in (tmp_path / "h" / "report.md").read_text()
