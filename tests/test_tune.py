@@ -250,7 +250,7 @@ def test_bad_space_is_one_line_exit_2(tmp_path, text, message):
 
 
 @pytest.mark.parametrize("args, message", [
-    (["synth:uniform-50hz:0", "--objective", "hota"], "unknown 'hota'"),
+    (["synth:uniform-50hz:0", "--objective", "deta"], "unknown 'deta'"),
     (["synth:uniform-50hz:0"], "--out DIR is required"),
     (["--out", "x"], "no clip to tune on"),
     (["missing-clip.avi", "--out", "x"], "no such file"),

@@ -470,7 +470,7 @@ def eval_(
     explain: Annotated[Optional[Path], typer.Option("--explain", help="An EXPLAIN.csv written by `record`/`track --explain`: print where Pd went (each cause's count and share in pipeline order, per target, and the false-track causes of <stem>-false.csv beside it). TRACKS and TRUTH may then be left out.", show_default=False)] = None,
     no_boxes: Annotated[bool, typer.Option("--no-boxes", help="Match within --gate only, even when the truth has box sizes (w,h columns; by default a track inside the box matches too).")] = False,
 ) -> None:
-    """Score tracks against ground truth: MOTA, MOTP, IDF1, switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
+    """Score tracks against ground truth: MOTA, MOTP, IDF1, HOTA (DetA, AssA), switches, CLE, Pd, FA/frame, p_d, p_f; with --explain, where Pd went."""
     import json
 
     from wfviz.evaluate import evaluate, format_backfilled, format_table, has_backfilled_rows
@@ -579,7 +579,7 @@ def tune(
     space: Annotated[Optional[Path], typer.Option("--space", help="Search space TOML (default: the tracker's; see --print-space).")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", help="Configuration the trials start from (default: the defaults); trial 0 runs it as it is.")] = None,
     trials: Annotated[int, typer.Option("--trials", min=1, help="Finished trials the study should have (a resumed study adds the rest).")] = 20,
-    objective: Annotated[str, typer.Option("--objective", help="mota, idf1 (maximised) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
+    objective: Annotated[str, typer.Option("--objective", help="mota, idf1, hota (maximised) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
     validate: Annotated[Optional[list[str]], typer.Option("--validate", metavar="<clip>", help="A clip scored in every trial but never used to choose (repeat for more).", show_default=False)] = None,
     folds: Annotated[int, typer.Option("--folds", min=0, help="Without --validate: leave-clips-out cross-validation of the chosen trial over K folds of the tune clips (report.md).")] = 0,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Trials run at a time (local processes, or Ray tasks with --ray). Default: this machine's cores.", show_default=False)] = None,
@@ -680,10 +680,10 @@ def _tune_summary(result, metric: str) -> None:
     for t in rows:
         tune_s = t.user_attrs["tune"]
         line = f"  trial {t.number:>4}{' (base)' if t.user_attrs.get('base') else '       '}  tune " + \
-            " ".join(f"{m} {tune_s[m]:.3f}" for m in ("mota", "idf1", "pd", "fa"))
+            " ".join(f"{m} {tune_s[m]:.3f}" for m in ("mota", "idf1", "hota", "pd", "fa") if m in tune_s)
         if has_val:
             v = t.user_attrs["validate"]
-            line += "  | validate " + " ".join(f"{m} {v[m]:.3f}" for m in ("mota", "idf1", "pd", "fa"))
+            line += "  | validate " + " ".join(f"{m} {v[m]:.3f}" for m in ("mota", "idf1", "hota", "pd", "fa") if m in v)
         miss = dominant((t.user_attrs.get("causes") or {}).get("tune"))
         if miss:
             line += f"  | most misses: {miss}"

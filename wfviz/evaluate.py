@@ -1,4 +1,5 @@
-"""Tracks against ground truth: MOT metrics (py-motmetrics), centre error, Pd, false alarms, latency.
+"""Tracks against ground truth: MOT metrics (py-motmetrics), HOTA (:mod:`wfviz.hota`), centre
+error, Pd, false alarms, latency.
 
 Hidden truth (rows with ``visible == 0``) is neither missed nor matchable. Like MOTChallenge's
 "don't care" objects, a track point left unmatched by the visible targets that lies within the
@@ -23,6 +24,8 @@ from typing import Any, Sequence
 
 import numpy as np
 from scipy.optimize import linear_sum_assignment
+
+from wfviz.hota import hota, point_similarity
 
 Point = tuple[int, float, float]
 Points = dict[int, list[Point]]
@@ -130,6 +133,9 @@ class EvalResult:
     per_target: tuple[TargetEval, ...]
     pd_settled: float = _NAN  # Pd without each target's first SETTLE visible frames
     match_rule: str = ""  # describe_rule(); "" becomes the gate's ("gate 3 px")
+    hota: float = _NAN   # HOTA (wfviz.hota), similarity max(0, 1 - d / gate) to the truth's centre
+    det_a: float = _NAN  # its detection accuracy DetA
+    ass_a: float = _NAN  # its association accuracy AssA
 
     def __post_init__(self) -> None:
         if not self.match_rule:
@@ -334,6 +340,7 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
     span = [f for f, v in (*truth.items(), *hidden.items()) if v]
     frames = range(min(span), max(span) + 1) if span else range(0)
     ignored = 0
+    scored = []  # (truth ids, track ids, similarity) a frame, for HOTA
     # only frames with points: the others add no event, so the cost follows the rows, not the span
     busy = sorted({f for f in (*truth, *hidden, *tracks) if f in frames})
     for f in busy:
@@ -344,6 +351,7 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
         d = _dist(gt, kept)
         ok = _allowed(gt, kept, d, gate, sizes)
         acc.update([p[0] for p in gt], [p[0] for p in kept], np.where(ok, d, np.nan), frameid=f)
+        scored.append(([p[0] for p in gt], [p[0] for p in kept], point_similarity(d, gate)))
     s = mm.metrics.create().compute(acc, name="all", metrics=[
         "num_detections", "num_misses", "num_false_positives", "num_switches",
         "num_fragmentations", "mota", "motp", "idf1", "num_objects"]).iloc[0]
@@ -371,6 +379,7 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
     dist = hit.D.to_numpy(float)
     n_truth, fp = int(s.num_objects), int(s.num_false_positives)
     lat = [p.latency for p in per if not math.isnan(p.latency)]
+    ho = hota(scored)
     return EvalResult(
         gate=float(gate), frames=len(frames), truth_points=n_truth, matches=int(s.num_detections),
         misses=int(s.num_misses), false_positives=fp, ignored=ignored, id_switches=int(s.num_switches),
@@ -382,7 +391,8 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
         latency_mean=float(np.mean(lat)) if lat else _NAN,
         p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per),
         pd_settled=settled_m / settled_n if settled_n else _NAN,
-        match_rule=describe_rule(gate, any(boxes.get(f) for f in busy)))
+        match_rule=describe_rule(gate, any(boxes.get(f) for f in busy)),
+        hota=ho.hota, det_a=ho.det_a, ass_a=ho.ass_a)
 
 
 def read_truth(path: Path | str) -> Truth:
@@ -422,7 +432,8 @@ def format_table(result: EvalResult) -> str:
     r = result
     lines = [
         f"frames {r.frames}   truth points {r.truth_points}   {r.match_rule}",
-        f"MOTA {num(r.mota)}   MOTP {num(r.motp)} px   IDF1 {num(r.idf1)}",
+        f"MOTA {num(r.mota)}   MOTP {num(r.motp)} px   IDF1 {num(r.idf1)}"
+        f"   HOTA {num(r.hota)} (DetA {num(r.det_a)}, AssA {num(r.ass_a)})",
         f"matches {r.matches}   misses {r.misses}   false positives {r.false_positives}"
         f"   ignored (hidden) {r.ignored}   ID switches {r.id_switches}   fragmentations {r.fragmentations}",
         f"CLE mean {num(r.cle_mean)} px   RMS {num(r.cle_rms)} px",

@@ -2,7 +2,7 @@
 validation clips) and every parameter as a series, and the trials in the Pd / false-track
 plane with the Pareto front marked.
 
-Entities: ``study/<role>/<metric>`` (role ``tune`` or ``validate``; metrics mota, idf1, pd,
+Entities: ``study/<role>/<metric>`` (role ``tune`` or ``validate``; metrics mota, idf1, hota, pd,
 fa, idsw), ``study/params/<section.key>`` (numbers; choices as their index), ``study/trials``
 and ``study/pareto`` (points: x = false tracks per frame, y = Pd, on the tune clips),
 ``study/log`` (one line per trial, failed ones with their error)."""
@@ -64,7 +64,7 @@ def record_study(path: Path, trials: list[Any], settings: StudySettings) -> Path
             rec.log("study/trials", rr.Points2D([[tune["fa"], tune["pd"]]], radii=rr.Radius.ui_points(4.0),
                                                 labels=[str(t.number)], show_labels=False))
             rec.log("study/log", rr.TextLog(
-                f"trial {t.number}: " + ", ".join(f"{m} {tune[m]:.3f}" for m in METRICS)
+                f"trial {t.number}: " + ", ".join(f"{m} {tune[m]:.3f}" for m in METRICS if m in tune)
                 + " | " + ", ".join(f"{k} {v:.4g}" if isinstance(v, float) else f"{k} {v}"
                                     for k, v in t.params.items())))
         front = sorted(pareto_front(done), key=lambda t: pd_fa(t)[1])

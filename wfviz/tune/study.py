@@ -33,6 +33,7 @@ from wfviz.tune.workers import make_pool
 OBJECTIVES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "mota": (("mota",), ("maximize",)),
     "idf1": (("idf1",), ("maximize",)),
+    "hota": (("hota",), ("maximize",)),
     "pareto": (("pd", "fa"), ("maximize", "minimize")),
 }
 STUDY_NAME = "wfviz-tune"

@@ -16,7 +16,7 @@ from typing import Any
 from wfviz.tune.clips import StudyClip
 
 #: per-clip metrics of a trial (``wfviz eval``'s names): higher is better except ``fa`` and ``idsw``
-METRICS = ("mota", "idf1", "pd", "fa", "idsw")
+METRICS = ("mota", "idf1", "hota", "pd", "fa", "idsw")
 
 
 @dataclass(frozen=True)
@@ -145,7 +145,7 @@ def _run(task: TrialTask) -> TrialOutcome:
                 result = evaluate(csv_path, clip.truth, gate=task.gate)
             finally:
                 csv_path.unlink(missing_ok=True)
-            scores[clip.label] = {"mota": result.mota, "idf1": result.idf1, "pd": result.pd,
+            scores[clip.label] = {"mota": result.mota, "idf1": result.idf1, "hota": result.hota, "pd": result.pd,
                                   "fa": result.fa_per_frame, "idsw": float(result.id_switches)}
     except KeyboardInterrupt:
         return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0)
@@ -157,9 +157,10 @@ def _run(task: TrialTask) -> TrialOutcome:
 
 
 def mean_scores(scores: dict[str, dict[str, float]], labels: list[str]) -> dict[str, float]:
-    """Each metric averaged over the clips ``labels`` (NaN when a clip's value is NaN or no clip)."""
+    """Each metric averaged over the clips ``labels`` (NaN when a clip's value is NaN or missing,
+    as in a trial scored before the metric was added, or no clip)."""
     out = {}
     for m in METRICS:
-        values = [scores[label][m] for label in labels if label in scores]
+        values = [scores[label].get(m, math.nan) for label in labels if label in scores]
         out[m] = sum(values) / len(values) if values and all(math.isfinite(v) for v in values) else math.nan
     return out
