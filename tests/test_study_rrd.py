@@ -137,7 +137,7 @@ def test_every_trial_stays_a_point_on_labelled_axes(study_rrd: Path) -> None:
 
 def test_defaults_and_best_are_marked(study_rrd: Path) -> None:
     """The defaults (trial 0) stay marked from trial 0 on; the best mark follows the best MOTA
-    so far, and at the end sits on the study's best trial."""
+    so far, and at the end sits on the study's best trial; the legend names both."""
     rows, static = _rows(study_rrd)
     fx, fy = _axis_map(static)
 
@@ -154,6 +154,9 @@ def test_defaults_and_best_are_marked(study_rrd: Path) -> None:
         row = _latest(rows["/study/plane/best"], trial)
         assert row is not None and row["Points2D:labels"] == [f"best: trial {best}"], trial
         assert where(row["Points2D:positions"][0]) == pytest.approx(POINTS[best])
+    legend = _latest(rows["/study/plane/legend"], last)
+    assert legend is not None and legend["Points2D:labels"] == [
+        f"trials ({sum(p is not None for p in POINTS)})", "Pareto front", "defaults: trial 0", f"best: trial {best}"]
     colors = {static_or_row["Points2D:colors"][0]
               for static_or_row in (defaults, _latest(rows["/study/plane/best"], last),
                                     _latest(rows["/study/plane/trials"], last))}
@@ -245,7 +248,7 @@ def test_default_timeline_is_the_only_sequence_one(tmp_path: Path) -> None:
 def test_screenshot_shows_every_trial_on_labelled_axes(study_rrd: Path, tmp_path: Path) -> None:
     """``wfviz screenshot --timeline trial study.rrd`` (and without ``--timeline``) exits 0; the
     picture shows, in the plane, one dot per completed trial (the defaults and the best under
-    their own larger marks) and the two axes as long lines."""
+    their own larger marks), the legend's marks and the two axes as long lines."""
     import cv2
 
     from wfviz.tune.palette import AXIS_COLOR, BEST_COLOR, DEFAULTS_COLOR, TRIAL_COLOR
@@ -261,16 +264,19 @@ def test_screenshot_shows_every_trial_on_labelled_axes(study_rrd: Path, tmp_path
         hsv = cv2.cvtColor(plane, cv2.COLOR_BGR2HSV).astype(np.int32)
 
         def blobs(color: tuple[int, int, int], min_area: int, hsv: np.ndarray = hsv) -> int:
-            """Round patches of ``color``'s hue (the marks are shaded, their labels small)."""
+            """Round patches of ``color``'s hue (the marks are shaded; a label's letters, in its
+            mark's colour, are thinner: at most 40 px, a 4-point dot about 55)."""
             h, sat, _ = cv2.cvtColor(np.uint8([[color[::-1]]]), cv2.COLOR_BGR2HSV)[0, 0].astype(int)
             dh = np.abs(hsv[..., 0] - h)
             mask = (np.minimum(dh, 180 - dh) <= 8) & (hsv[..., 1] >= 0.6 * sat) & (hsv[..., 2] >= 90)
             _, _, stats, _ = cv2.connectedComponentsWithStats(mask.astype(np.uint8), connectivity=8)
             return sum(1 for s in stats[1:] if s[cv2.CC_STAT_AREA] >= min_area
+                       and s[cv2.CC_STAT_AREA] >= 0.65 * s[cv2.CC_STAT_WIDTH] * s[cv2.CC_STAT_HEIGHT]
                        and 0.7 <= s[cv2.CC_STAT_WIDTH] / s[cv2.CC_STAT_HEIGHT] <= 1.4)
 
-        assert blobs(TRIAL_COLOR, 30) == completed - 2, f"{name}: a dot per trial besides the defaults and the best"
-        assert blobs(DEFAULTS_COLOR, 80) == 1 and blobs(BEST_COLOR, 80) == 1, name
+        # the legend's marks: one each; the defaults' and the best's marks hide their trials' dots
+        assert blobs(TRIAL_COLOR, 45) == completed - 2 + 1, f"{name}: a dot per trial"
+        assert blobs(DEFAULTS_COLOR, 80) == 2 and blobs(BEST_COLOR, 80) == 2, name
         rgb = cv2.cvtColor(plane, cv2.COLOR_BGR2RGB).astype(np.int32)
         axis = np.abs(rgb - np.array(AXIS_COLOR)).max(axis=2) <= 25
         assert axis.sum(axis=1).max() > 0.3 * plane.shape[1], f"{name}: no x axis"
