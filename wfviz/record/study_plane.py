@@ -21,8 +21,7 @@ WIDTH, HEIGHT = 160.0, 100.0  # the plot box, scene units
 X_TITLE = "false tracks per frame (tune clips)"
 Y_TITLE = "Pd (tune clips)"
 _GRID_COLOR = (70, 74, 80)
-_RADII = {"trials": rr.Radius.ui_points(4.0), "front": rr.Radius.ui_points(4.0),
-          "defaults": rr.Radius.ui_points(7.0), "best": rr.Radius.ui_points(5.5)}
+_SIZES = {"trials": 4.0, "front": 4.0, "defaults": 7.0, "best": 5.5}  # marks' radii, UI points
 _COLORS = {"trials": TRIAL_COLOR, "front": FRONT_COLOR, "defaults": DEFAULTS_COLOR, "best": BEST_COLOR}
 
 
@@ -98,7 +97,7 @@ def log_step(rec: rr.RecordingStream, x: Axis, y: Axis, done: list[Any], objecti
         return
     scene = {t.number: to_scene(x, y, pd_fa(t)[1], pd_fa(t)[0]) for t in pts}
     rec.log(f"{ORIGIN}/trials", rr.Points2D([scene[t.number] for t in pts], labels=[_label(t, objective) for t in pts],
-                                            colors=[TRIAL_COLOR], radii=_RADII["trials"], show_labels=False,
+                                            colors=[TRIAL_COLOR], radii=rr.Radius.ui_points(_SIZES["trials"]), show_labels=False,
                                             draw_order=10.0))
     front = sorted(pareto_front(pts), key=lambda t: (pd_fa(t)[1], pd_fa(t)[0]))
     rec.log(f"{ORIGIN}/front", rr.LineStrips2D([[scene[t.number] for t in front]], colors=[FRONT_COLOR],
@@ -107,13 +106,13 @@ def log_step(rec: rr.RecordingStream, x: Axis, y: Axis, done: list[Any], objecti
     new = done[-1]
     if new.user_attrs.get("base") and new.number in scene:  # stays from its trial on
         rec.log(f"{ORIGIN}/defaults", rr.Points2D([scene[new.number]], labels=[f"defaults (trial {new.number})"],
-                                                  colors=[DEFAULTS_COLOR], radii=_RADII["defaults"],
+                                                  colors=[DEFAULTS_COLOR], radii=rr.Radius.ui_points(_SIZES["defaults"]),
                                                   show_labels=False, draw_order=30.0))
     pareto = objective == "pareto"
     best = front if pareto else ranked(pts, objective)[:1]
     names = [f"trial {t.number}" for t in best] if pareto else [f"best: trial {best[0].number}"]
     rec.log(f"{ORIGIN}/best", rr.Points2D([scene[t.number] for t in best], labels=names, colors=[BEST_COLOR],
-                                          radii=_RADII["best"], show_labels=pareto, draw_order=40.0))
+                                          radii=rr.Radius.ui_points(_SIZES["best"]), show_labels=pareto, draw_order=40.0))
     base = [t for t in pts if t.user_attrs.get("base")]
     entries = [("trials", f"trials ({len(pts)})"), ("front", "Pareto front")]
     entries += [("defaults", f"defaults: trial {base[0].number}")] if base else []
@@ -127,5 +126,5 @@ def log_legend(rec: rr.RecordingStream, entries: list[tuple[str, str]]) -> None:
     xs = [WIDTH * (0.25 + 0.65 * i / max(1, len(entries) - 1)) for i in range(len(entries))]
     rec.log(f"{ORIGIN}/legend", rr.Points2D([(x, -0.1 * HEIGHT) for x in xs], labels=[text for _, text in entries],
                                             colors=[_COLORS[k] for k, _ in entries],
-                                            radii=[_RADII[k] for k, _ in entries], show_labels=True,
+                                            radii=rr.Radius.ui_points([_SIZES[k] for k, _ in entries]), show_labels=True,
                                             draw_order=40.0))
