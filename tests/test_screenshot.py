@@ -423,16 +423,20 @@ def test_bad_options_are_one_line_naming_the_recording(clip_rrd: Path, tmp_path:
 
 
 def test_unknown_timeline_is_one_line_listing_the_recordings_timelines(trial_rrd: Path, tmp_path: Path) -> None:
-    """The default ``frame`` on a study: the error says which timelines it has (a subprocess:
-    stderr holds that one line and nothing else); its ``trial`` range; no image to crop."""
+    """``--timeline frame`` on a study: the error says which timelines it has (a subprocess:
+    stderr holds that one line and nothing else); its ``trial`` range, with or without
+    ``--timeline trial`` (its only sequence timeline, the default there); no image to crop."""
     from conftest import invoke, one_line_error, wfviz
 
-    one_line_error(wfviz("screenshot", str(trial_rrd), "-o", str(tmp_path / "s.png")),
+    one_line_error(wfviz("screenshot", str(trial_rrd), "--timeline", "frame", "-o", str(tmp_path / "s.png")),
                    "--timeline frame", str(trial_rrd), "(it has: log_time, trial)")
     for args, words in ((["--frame", "9"], "--frame 9: "), (["--around", "1,1"], "no image to crop")):
-        result = invoke("screenshot", str(trial_rrd), "--timeline", "trial", *args, "-o", str(tmp_path / "s.png"))
-        assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
-        assert words in result.output and str(trial_rrd) in result.output, result.output
+        for timeline in (["--timeline", "trial"], []):
+            result = invoke("screenshot", str(trial_rrd), *timeline, *args, "-o", str(tmp_path / "s.png"))
+            assert result.exit_code == 2 and len(result.output.strip().splitlines()) == 1, result.output
+            assert words in result.output and str(trial_rrd) in result.output, result.output
+    assert "holds trial 0-3" in invoke("screenshot", str(trial_rrd), "--frame", "9", "-o",
+                                       str(tmp_path / "s.png")).output
     assert "holds trial 0-3" in invoke("screenshot", str(trial_rrd), "--timeline", "trial", "--frames", "0,4",
                                        "-o", str(tmp_path / "s.png")).output
     assert not list(tmp_path.iterdir())

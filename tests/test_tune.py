@@ -139,6 +139,26 @@ def test_study_recording_has_trial_timeline(study):
     assert "/study/pareto" in static
 
 
+def test_study_recording_keeps_every_trial_in_the_plane(study):
+    """Through ``wfviz tune``: after the 8 trials the plane's batch holds 8 points (one per
+    trial, labelled with its number), the defaults and the best are marked, and every parameter
+    lies on its search range."""
+    cwd, *_ = study
+    last: dict[str, list] = {}
+    scaled: list[float] = []
+    for chunk in RrdReader(cwd / "st" / "study.rrd").stream():
+        batch = chunk.to_record_batch()
+        if chunk.entity_path.startswith("/study/params_scaled/") and "Scalars:scalars" in batch.schema.names:
+            scaled += [v[0] for v in batch.column("Scalars:scalars").to_pylist()]
+        if chunk.entity_path.startswith("/study/plane/") and "Points2D:labels" in batch.schema.names:
+            last[chunk.entity_path] = batch.column("Points2D:labels").to_pylist()[-1]
+    assert [int(s.split(":")[0].split()[1]) for s in last["/study/plane/trials"]] == list(range(8))
+    assert last["/study/plane/defaults"] == ["defaults (trial 0)"]
+    best = max(rows(cwd / "st" / "trials.csv"), key=lambda r: (float(r["tune_mota"]), -int(r["trial"])))
+    assert last["/study/plane/best"] == [f"best: trial {best['trial']}"]
+    assert len(scaled) == 8 * 4 and all(0.0 <= v <= 1.0 for v in scaled)
+
+
 def test_cache_gives_the_same_trials(tmp_path):
     (tmp_path / "space.toml").write_text(SPACE)
     out = {}

@@ -517,7 +517,7 @@ def screenshot(
     output: Annotated[Path, typer.Option("-o", "--output", help="PNG to write.")] = Path("screenshot.png"),
     frame: Annotated[Optional[int], typer.Option("--frame", min=0, help="Frame to show (a time on --timeline), within the recording's range (default: its last).")] = None,
     frames: Annotated[Optional[str], typer.Option("--frames", metavar="A,B,C", help="Several frames in one PNG, one viewer for all: a panel per frame, labelled with its number, side by side (a grid beyond 3; at most 16).", show_default=False)] = None,
-    timeline: Annotated[str, typer.Option("--timeline", help="Sequence timeline the frames are on, e.g. trial for the study.rrd of `wfviz tune`.")] = "frame",
+    timeline: Annotated[Optional[str], typer.Option("--timeline", help="Sequence timeline the frames are on (default: frame, else the recording's only sequence timeline, e.g. trial in the study.rrd of `wfviz tune`).", show_default=False)] = None,
     around: Annotated[Optional[str], typer.Option("--around", metavar="X,Y", help="Crop the 2D (camera) views around this image point: x = column, y = row, origin at the centre of the top-left pixel.", show_default=False)] = None,
     target: Annotated[Optional[int], typer.Option("--target", metavar="ID", help="Crop around truth target ID where it is in each frame shown (camera/truth: recorded with --truth, always by `wfviz demo`).", show_default=False)] = None,
     track: Annotated[Optional[int], typer.Option("--track", metavar="ID", help="Crop around confirmed track ID where it is in each frame shown (the end of its trail, camera/tracks).", show_default=False)] = None,
@@ -526,13 +526,14 @@ def screenshot(
     height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels (of each panel with --frames).")] = 1000,
 ) -> None:
     """Render a recording in the real Rerun viewer, headless, with its default blueprint: one frame, or several side by side, the camera views optionally zoomed around a point, a truth target or a track."""
-    from wfviz.record.screenshot import ScreenshotError, plan_shots, render_shots
+    from wfviz.record.screenshot import ScreenshotError, pick_timeline, plan_shots, render_shots
 
     if not recording.is_file():
         raise ValueError(f"{recording}: no such recording")
     if output.is_dir():
         raise OutputError(f"{output}: is a folder, expected a PNG file name")
     _guard_outputs(output, inputs=((recording, "the recording"),))
+    timeline = pick_timeline(recording, timeline)
     shots = plan_shots(recording, frame=frame, frames=frames, timeline=timeline, around=around, target=target,
                        track=track, zoom=zoom)
     try:

@@ -35,8 +35,8 @@ if TYPE_CHECKING:
     from rerun.experimental import Timeline, ViewerClient
 
 __all__ = [
-    "Bounds", "ScreenshotError", "Shot", "crop_bounds", "frame_range", "image_size", "overlay_positions", "plan_shots",
-    "render_screenshot", "render_shots", "timelines",
+    "Bounds", "ScreenshotError", "Shot", "crop_bounds", "frame_range", "image_size", "overlay_positions", "pick_timeline",
+    "plan_shots", "render_screenshot", "render_shots", "timelines",
 ]
 
 _ICD_DIRS = ("/usr/share/vulkan/icd.d", "/usr/local/share/vulkan/icd.d", "/etc/vulkan/icd.d")
@@ -76,6 +76,23 @@ def crop_bounds(x: float, y: float, zoom: float, size: tuple[int, int]) -> Bound
     half_w, half_h = size[0] / zoom / 2, size[1] / zoom / 2
     cx, cy = x, y
     return (cx - half_w, cx + half_w, cy - half_h, cy + half_h)
+
+
+def pick_timeline(rrd: Path, timeline: str | None = None) -> str:
+    """``timeline`` when given; else ``frame`` when recording ``rrd`` has it (or cannot be read:
+    the viewer then reports the problem), else its only sequence timeline (``trial`` in a
+    ``study.rrd``). Raises ValueError, naming ``rrd`` and its sequence timelines, when it has
+    several and no ``frame``."""
+    if timeline is not None:
+        return timeline
+    kinds = timelines(rrd)
+    if kinds is None or "frame" in kinds:
+        return "frame"
+    sequences = sorted(n for n, k in kinds.items() if k == "sequence")
+    if len(sequences) == 1:
+        return sequences[0]
+    held = ", ".join(sequences) or "none"
+    raise ValueError(f"{rrd} has no frame timeline: give --timeline (its sequence timelines: {held})")
 
 
 def plan_shots(
