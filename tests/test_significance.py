@@ -32,7 +32,7 @@ def test_identical_runs_are_within_noise():
     for m in ("mota", "idf1", "pd", "fa", "idsw"):
         g = paired_gain(base, [c.copy() for c in base], m)
         assert g.value == 0.0 and g.low == 0.0 and g.high == 0.0 and g.noise, m
-        assert "within noise" in g.text()
+        assert g.text() == "no change"
 
 
 def test_a_known_difference_is_detected():
@@ -120,3 +120,35 @@ def test_frame_counts_give_the_evaluated_scores(tmp_path):
     for m, want in (("mota", result.mota), ("pd", result.pd), ("fa", result.fa_per_frame),
                     ("idf1", result.idf1), ("idsw", float(result.id_switches))):
         assert float(metric(s, len(counts), m)) == pytest.approx(want), m
+
+
+def trial(number: int, tune: list[np.ndarray], val: list[np.ndarray], base: bool = False, frames: bool = True):
+    """A finished trial as the report reads it: scores per role and packed frame counts per clip."""
+    from types import SimpleNamespace
+
+    labels = {f"t{i}": c for i, c in enumerate(tune)} | {f"v{i}": c for i, c in enumerate(val)}
+    mean = {r: {m: float(np.mean([metric(c.sum(0), len(c), m) for c in cs])) for m in ("mota", "pd")}
+            for r, cs in (("tune", tune), ("validate", val))}
+    attrs = {"base": base, **mean} | ({"frames": {k: pack(c) for k, c in labels.items()}} if frames else {})
+    return SimpleNamespace(number=number, user_attrs=attrs)
+
+
+def test_the_verdict_tells_a_real_gain_from_noise():
+    from wfviz.tune.gains import TrialGains, verdict
+
+    tune, val = two_clips(), [clip(60, 3, 7)]
+    found = [c.copy() for c in tune]
+    for c in found:  # every miss found: a real gain on the tune clips
+        c[:, 1] = c[:, 0]
+    one_more = [c.copy() for c in val]
+    one_more[0][int(np.flatnonzero(val[0][:, 1] < val[0][:, 0])[0]), 1] += 1  # one more point on validation
+    base = trial(0, tune, val, base=True)
+    gains = TrialGains(base, {"tune": ["t0", "t1"], "validate": ["v0"]})
+    text = verdict(trial(4, found, one_more), gains, "mota", True)
+    assert "beyond noise" in text and "within noise: not confirmed" in text
+    assert "the search fitted the tune clips by that much" in text  # its tune gain did not carry over
+    noise = verdict(trial(5, [c.copy() for c in tune], one_more), gains, "mota", True)
+    assert "**within noise**" in noise and "keep the base" in noise
+    old = verdict(trial(6, found, val, frames=False), gains, "mota", True)
+    assert "no interval" in old
+    assert verdict(base, gains, "mota", True).startswith("The base is the best trial")

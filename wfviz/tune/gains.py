@@ -123,19 +123,19 @@ def verdict(best: Any, gains: TrialGains, metric: str, has_val: bool) -> str:
         return (f"The best trial gains {gain_t:+.3f} {metric} over the base on the tune clips (no interval: "
                 "its trials were run before frame counts were kept).")
     if t.noise:
-        text = (f"The best trial's gain over the base on the tune clips, {t.text()} {metric}, is **within noise**: "
+        text = (f"The best trial's {metric} gain over the base on the tune clips, {t.text(note=False)}, is **within noise**: "
                 "the search found nothing better than the base on these clips beyond chance; keep the base.")
     else:
-        text = f"The best trial gains {t.text()} {metric} over the base on the tune clips, beyond noise."
+        text = f"The best trial gains {t.text(note=False)} {metric} over the base on the tune clips, beyond noise."
     if v is None:
         return text
     if v.low > 0:
-        text += f" On the validation clips it gains {v.text()}: the gain holds."
+        text += f" On the validation clips it gains {v.text(note=False)}: the gain holds."
     elif v.high < 0:
-        text += (f" On the validation clips it loses {v.text()}: the gain does **not** hold (the search fitted "
+        text += (f" On the validation clips it loses {v.text(note=False)}: the gain does **not** hold (the search fitted "
                  "the tune clips).")
     else:
-        text += (f" On the validation clips its gain, {v.text()}, is within noise: not confirmed (more or longer "
+        text += (f" On the validation clips its gain, {v.text(note=False)}, is within noise: not confirmed (more or longer "
                  "validation clips would tell).")
     g = gains.gap(best, metric)
     if g is not None:
@@ -145,7 +145,7 @@ def verdict(best: Any, gains: TrialGains, metric: str, has_val: bool) -> str:
                 "the search fitted the tune clips by that much" if g.low > 0 else
                 "the trial does better on the validation clips than its tune gain promised")
         text += (f" Its tune − validation gap is {gap:+.3f} against the base's {gap0:+.3f}: a change of "
-                 f"{g.text()}, {what}.")
+                 f"{g.text(note=False)}: {what}.")
     return text
 
 

@@ -39,14 +39,17 @@ class Gain:
         """Whether the interval holds 0: the difference is within noise (or undefined)."""
         return not (self.low > 0 or self.high < 0)
 
-    def text(self, fmt: str = "+.3f") -> str:
-        """``+0.012 [+0.004, +0.020]``, with ``, within noise`` when it is."""
+    def text(self, fmt: str = "+.3f", note: bool = True) -> str:
+        """``+0.012 [+0.004, +0.020]``, with ``note`` and ``, within noise`` when it is;
+        ``no change`` when every resample gives 0."""
         if not np.isfinite(self.value):
             return "–"
         if not (np.isfinite(self.low) and np.isfinite(self.high)):
             return f"{self.value:{fmt}} (no interval)"
+        if self.value == self.low == self.high == 0:
+            return "no change"
         return (f"{self.value:{fmt}} [{self.low:{fmt}}, {self.high:{fmt}}]"
-                + (", within noise" if self.noise else ""))
+                + (", within noise" if note and self.noise else ""))
 
 
 def pack(counts: np.ndarray) -> list[list[int]]:
