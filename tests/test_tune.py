@@ -6,6 +6,7 @@ from __future__ import annotations
 
 import functools
 import os
+import re
 import signal
 import subprocess
 import sys
@@ -157,6 +158,68 @@ def test_study_recording_keeps_every_trial_in_the_plane(study):
     best = max(rows(cwd / "st" / "trials.csv"), key=lambda r: (float(r["tune_mota"]), -int(r["trial"])))
     assert last["/study/plane/best"] == [f"best: trial {best['trial']}"]
     assert len(scaled) == 8 * 4 and all(0.0 <= v <= 1.0 for v in scaled)
+
+
+GAIN = re.compile(r"^([+-]\d\.\d{3} \[[+-]\d\.\d{3}, [+-]\d\.\d{3}\](, within noise)?|no change)$")
+
+
+def table(report: str, title: str) -> list[dict[str, str]]:
+    """The rows of the first markdown table after the heading ``title`` in ``report``."""
+    lines = report.split(title, 1)[1].splitlines()
+    body = [line for line in lines[lines.index(next(x for x in lines if x.startswith("|"))):]]
+    body = body[:next((i for i, x in enumerate(body) if not x.startswith("|")), len(body))]
+    head = [c.strip() for c in body[0].strip("|").split("|")]
+    return [dict(zip(head, (c.strip() for c in r.strip("|").split("|")))) for r in body[2:]]
+
+
+def test_report_gives_every_gain_an_interval(study):
+    cwd, *_ = study
+    st = cwd / "st"
+    report = (st / "report.md").read_text()
+    by_trial = {r["trial"]: r for r in rows(st / "trials.csv")}
+    base = by_trial["0"]
+    best = table(report, "## Best 8 trials")
+    assert len(best) == 8 and "validation mota" in best[0] and "gain (validation)" in best[0]
+    for r in best:
+        n = r["trial"].split()[0]
+        if n == "0":
+            assert r["gain (tune)"] == "(base)"
+            continue
+        for role, col in (("tune", "gain (tune)"), ("validate", "gain (validation)")):
+            # trials 0-5 ran before the resume: their frame counts came back from the journal
+            assert GAIN.match(r[col]), (n, r[col])
+            want = float(by_trial[n][f"{role}_mota"]) - float(base[f"{role}_mota"])
+            if r[col] == "no change":
+                assert want == 0
+                continue
+            assert float(r[col].split()[0]) == pytest.approx(want, abs=5e-4)
+            low, high = (float(x) for x in r[col].split("[")[1].split("]")[0].split(", "))
+            assert low <= high and (("within noise" in r[col]) == (low <= 0 <= high))
+        assert float(r["validation mota"]) == pytest.approx(float(by_trial[n]["validate_mota"]), abs=5e-4)
+    scores = table(report, "## Tune and validation scores")
+    assert scores[0]["trial"] == "0 (base)" and scores[0]["gap change from the base"] == "(reference)"
+    gap = float(base["tune_mota"]) - float(base["validate_mota"])
+    assert float(scores[0]["gap (tune − validation) mota"]) == pytest.approx(gap, abs=5e-4)
+    assert "From 8 completed trials" in report and "fewer than 30 trials this is a hint" in report
+    for name in ("history.png", "pareto.png", "tune_vs_validation.png"):  # pareto.png: every study
+        assert (st / name).is_file() and f"({name})" in report, name
+
+
+def test_trials_keep_their_frame_counts(study):
+    from wfviz.tune.significance import metric, unpack
+    from wfviz.tune.study import finished, load_journal
+
+    cwd, *_ = study
+    by_trial = {r["trial"]: r for r in rows(cwd / "st" / "trials.csv")}
+    trials = finished(load_journal(cwd / "st" / "study.journal"))
+    assert len(trials) == 8
+    for t in trials:
+        for label, packed in t.user_attrs["frames"].items():
+            counts = unpack(packed)
+            assert len(counts) == int(STOP)
+            for m in ("mota", "pd", "idf1", "fa"):
+                got = float(metric(counts.sum(0), len(counts), m))
+                assert got == pytest.approx(float(by_trial[str(t.number)][f"{label}_{m}"])), (t.number, label, m)
 
 
 def test_cache_gives_the_same_trials(tmp_path):

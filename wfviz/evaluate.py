@@ -334,6 +334,14 @@ def score_targets(tracks: Points, truth: Points, gate: float = 3.0) -> list[Targ
 
 def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes: Boxes) -> EvalResult:
     """Feed every frame of the truth's range to a motmetrics accumulator and summarise."""
+    return _summarise(*_accumulate(tracks, truth, hidden, gate, boxes), truth, gate)
+
+
+def _accumulate(tracks: Points, truth: Points, hidden: Points, gate: float,
+                boxes: Boxes) -> tuple[Any, range, int, bool, list]:
+    """A motmetrics accumulator fed every frame of the truth's range that has points, the
+    range, the track points ignored on hidden truth, whether a truth box was used and each
+    frame's (truth ids, track ids, similarity) for HOTA."""
     import motmetrics as mm  # pandas-heavy: import only when evaluating
 
     acc = mm.MOTAccumulator(auto_id=False)
@@ -352,6 +360,15 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
         ok = _allowed(gt, kept, d, gate, sizes)
         acc.update([p[0] for p in gt], [p[0] for p in kept], np.where(ok, d, np.nan), frameid=f)
         scored.append(([p[0] for p in gt], [p[0] for p in kept], point_similarity(d, gate)))
+    return acc, frames, ignored, any(boxes.get(f) for f in busy), scored
+
+
+def _summarise(acc: Any, frames: range, ignored: int, boxed: bool, scored: list, truth: Points,
+               gate: float) -> EvalResult:
+    """The :class:`EvalResult` of an accumulator :func:`_accumulate` fed (``scored``: its
+    per-frame ids and similarities, for HOTA)."""
+    import motmetrics as mm
+
     s = mm.metrics.create().compute(acc, name="all", metrics=[
         "num_detections", "num_misses", "num_false_positives", "num_switches",
         "num_fragmentations", "mota", "motp", "idf1", "num_objects"]).iloc[0]
@@ -391,7 +408,7 @@ def _evaluate(tracks: Points, truth: Points, hidden: Points, gate: float, boxes:
         latency_mean=float(np.mean(lat)) if lat else _NAN,
         p_f=fp / (n_truth + fp) if n_truth + fp else _NAN, per_target=tuple(per),
         pd_settled=settled_m / settled_n if settled_n else _NAN,
-        match_rule=describe_rule(gate, any(boxes.get(f) for f in busy)),
+        match_rule=describe_rule(gate, boxed),
         hota=ho.hota, det_a=ho.det_a, ass_a=ho.ass_a)
 
 
@@ -408,6 +425,18 @@ def evaluate_points(tracks: Points, truth: Points, gate: float = 3.0,
     return _evaluate(tracks, truth, hidden or {}, gate, boxes or {})
 
 
+def _load(tracks: Path | str, truth: Path | str, gate: float, all_rows: bool, use_boxes: bool,
+          online: bool) -> tuple[Points, Points, Points, float, Boxes]:
+    """:func:`_accumulate`'s arguments from a tracks CSV and a truth CSV (see :func:`evaluate`)."""
+    t = read_truth(truth)
+    if not t.shown and not t.hidden:
+        raise TruthError(f"{Path(truth).name}: no truth rows (only a header, or empty)")
+    track_pts = (_read(tracks, "track_id", None) if all_rows
+                 else _read(tracks, "track_id", "confirmed", need_flag=True,
+                            unless="backfilled" if online else None))[0]
+    return track_pts, t.shown, t.hidden, gate, t.boxes if use_boxes else {}
+
+
 def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows: bool = False,
              use_boxes: bool = True, online: bool = False) -> EvalResult:
     """Score a tracks CSV (``confirmed == 1`` rows; every row with ``all_rows``, and a file
@@ -415,13 +444,47 @@ def evaluate(tracks: Path | str, truth: Path | str, gate: float = 3.0, all_rows:
     with its boxes unless not ``use_boxes``. ``online``: rows with ``backfilled == 1`` (a
     track's tentative rows rewritten as confirmed, ``--backfill``) count as tentative, the
     scores a live run had. A truth file without any row is an error."""
-    t = read_truth(truth)
-    if not t.shown and not t.hidden:
-        raise TruthError(f"{Path(truth).name}: no truth rows (only a header, or empty)")
-    track_pts = (_read(tracks, "track_id", None) if all_rows
-                 else _read(tracks, "track_id", "confirmed", need_flag=True,
-                            unless="backfilled" if online else None))[0]
-    return _evaluate(track_pts, t.shown, t.hidden, gate, t.boxes if use_boxes else {})
+    return _evaluate(*_load(tracks, truth, gate, all_rows, use_boxes, online))
+
+
+#: the columns of :func:`evaluate_by_frame`'s counts, one row per frame of the truth's range:
+#: visible truth points, matched ones, false positives, identity switches and identity matches
+#: (matches of the truth-track pairs IDF1's global assignment keeps, its IDTP)
+FRAME_COUNTS = ("truth", "matches", "false_positives", "id_switches", "id_matches")
+
+
+def evaluate_by_frame(tracks: Path | str, truth: Path | str, gate: float = 3.0) -> tuple[EvalResult, np.ndarray]:
+    """:func:`evaluate` (confirmed rows, boxes used) and the counts behind it frame by frame:
+    an int array (frames of the truth's range, :data:`FRAME_COUNTS`) whose column sums give the
+    result's counts (misses = truth − matches; MOTA, Pd, false tracks a frame and IDF1 follow)."""
+    track_pts, shown, hidden, gate, boxes = _load(tracks, truth, gate, False, True, False)
+    acc, frames, ignored, boxed, scored = _accumulate(track_pts, shown, hidden, gate, boxes)
+    return _summarise(acc, frames, ignored, boxed, scored, shown, gate), _frame_counts(acc, frames)
+
+
+def _frame_counts(acc: Any, frames: range) -> np.ndarray:
+    """The :data:`FRAME_COUNTS` of every frame in ``frames`` from a fed accumulator."""
+    import motmetrics as mm
+
+    out = np.zeros((len(frames), len(FRAME_COUNTS)), dtype=np.int64)
+    ev = acc.mot_events
+    if not len(frames) or ev.empty:
+        return out
+    row = ev.index.get_level_values("FrameId").to_numpy(int) - frames.start
+    kind = ev.Type.astype(str).to_numpy()
+    for col, types in ((0, ("MATCH", "SWITCH", "MISS")), (1, ("MATCH", "SWITCH")), (2, ("FP",)), (3, ("SWITCH",))):
+        np.add.at(out[:, col], row[np.isin(kind, types)], 1)
+    dfm = mm.metrics.events_to_df_map(acc.events)
+    ids = mm.metrics.id_global_assignment(dfm)
+    ocs, hcs, _ = mm.metrics.extract_counts_from_df_map(dfm)
+    oids, hids = sorted(ocs), sorted(hcs)
+    kept = {(oids[r], hids[c]) for r, c in zip(ids["rids"], ids["cids"]) if r < len(oids) and c < len(hids)}
+    raw = dfm.raw.dropna(subset=["D"])
+    if kept and not raw.empty:
+        pairs = zip(raw.OId.to_numpy(), raw.HId.to_numpy())
+        hit = np.fromiter(((o, h) in kept for o, h in pairs), dtype=bool, count=len(raw))
+        np.add.at(out[:, 4], raw.index.get_level_values("FrameId").to_numpy(int)[hit] - frames.start, 1)
+    return out
 
 
 def format_table(result: EvalResult) -> str:

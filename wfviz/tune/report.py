@@ -1,6 +1,8 @@
-"""``report.md`` of a study with its PNG plots: the history, the Pareto front, parameter
-importance, tune against validation scores (the gap says whether the search fitted the clips
-it saw), and where Pd went in the base and the best trials (which cause the search reduced)."""
+"""``report.md`` of a study with its PNG plots (:mod:`wfviz.tune.plots`): the scores of the
+base and the best trials and their gains over the base with intervals (:mod:`wfviz.tune.gains`:
+is a gain more than noise, does it hold on the validation clips, how much did the search fit
+the tune clips), where Pd went in the base and the best trials (which cause the search
+reduced), and parameter importance with the number of trials it rests on."""
 
 from __future__ import annotations
 
@@ -9,18 +11,16 @@ from pathlib import Path
 from typing import Any
 
 from wfviz.tune.folder import StudyFolder
-from wfviz.tune.outputs import pareto_front, pd_fa, ranked
+from wfviz.tune.gains import TrialGains, best_section, num, scores_section, trial_name, verdict
+from wfviz.tune.outputs import pareto_front, ranked
+from wfviz.tune.plots import write_plots
 from wfviz.tune.study import OBJECTIVES, StudySettings
-from wfviz.tune.trial import METRICS, dominant, mean_scores
+from wfviz.tune.trial import dominant, mean_scores
 
 SHOWN = 10  # trials in the report's table
+IMPORTANCE_TRIALS = 30  # below this many trials the importance is a hint (PED-ANOVA's top 10 %: 3 trials)
+TARGET_QUANTILE = 0.1  # PED-ANOVA's default: the best 10 % of the trials against all of them
 CAUSE_TRIALS = 4  # trials beside the base in the "where Pd went" tables (a Pareto front's first)
-
-
-def _f(v: Any, fmt: str = ".3f") -> str:
-    if v is None or (isinstance(v, float) and not math.isfinite(v)):
-        return "–"
-    return format(v, fmt) if isinstance(v, float) else str(v)
 
 
 def folds_table(trials: list[Any], settings: StudySettings, k: int) -> tuple[list[str], float, float]:
@@ -44,13 +44,9 @@ def folds_table(trials: list[Any], settings: StudySettings, k: int) -> tuple[lis
         held_score = mean_scores(best.user_attrs["scores"], held)[metric]
         ins.append(score[best.number])
         outs.append(held_score)
-        lines.append(f"| {i + 1} | {', '.join(held)} | {best.number} | {_f(score[best.number])} | {_f(held_score)} |")
+        lines.append(f"| {i + 1} | {', '.join(held)} | {best.number} | {num(score[best.number])} | {num(held_score)} |")
     mean = (lambda xs: sum(xs) / len(xs) if xs else math.nan)  # noqa: E731
     return lines, mean(ins), mean(outs)
-
-
-def _trial_name(t: Any, best: Any) -> str:
-    return f"{t.number} (base)" if t.user_attrs.get("base") else f"{t.number} (best)" if t is best else str(t.number)
 
 
 def causes_table(trials: list[Any], role: str, best: Any) -> list[str]:
@@ -63,7 +59,7 @@ def causes_table(trials: list[Any], role: str, best: Any) -> list[str]:
 
     counts = [(t.user_attrs.get("causes") or {}).get(role) for t in trials]
     change = len(trials) == 2 and all(counts)
-    names = [_trial_name(t, best) for t in trials]
+    names = [trial_name(t, best) for t in trials]
     lines = ["| cause | " + " | ".join(f"trial {n}" for n in names)
              + (f" | {names[1]} − {names[0]}" if change else "") + " |",
              "|---|" + "---:|" * (len(trials) + change)]
@@ -134,92 +130,6 @@ def _where_pd_went(done: list[Any], base: list[Any], best: list[Any], settings: 
     return md
 
 
-def _plots(folder: StudyFolder, trials: list[Any], settings: StudySettings, importance: dict[str, float]) -> list[Path]:
-    import matplotlib
-
-    matplotlib.use("Agg")
-    import matplotlib.pyplot as plt
-
-    metrics, directions = OBJECTIVES[settings.objective]
-    done = sorted((t for t in trials if t.values is not None), key=lambda t: t.number)
-    has_val = any(c.role == "validate" for c in settings.clips)
-    files = []
-    if not done:
-        return files
-    fig, axes = plt.subplots(1, len(metrics), figsize=(6 * len(metrics), 3.6), squeeze=False)
-    for ax, m, d in zip(axes[0], metrics, directions):
-        n = [t.number for t in done]
-        v = [t.user_attrs["tune"][m] for t in done]
-        ax.plot(n, v, "o", ms=4, label="tune clips")
-        best, run = [], None
-        for x in v:
-            run = x if run is None else (max(run, x) if d == "maximize" else min(run, x))
-            best.append(run)
-        ax.step(n, best, where="post", label="best so far")
-        if has_val:
-            ax.plot(n, [t.user_attrs["validate"][m] for t in done], "x", ms=4, label="validation clips")
-        ax.set_xlabel("trial")
-        ax.set_ylabel(m)
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-    fig.tight_layout()
-    files.append(folder.path / "history.png")
-    _save(fig, files[-1], folder)
-    if settings.objective == "pareto":
-        fig, ax = plt.subplots(figsize=(5.5, 4))
-        ax.plot([pd_fa(t)[1] for t in done], [pd_fa(t)[0] for t in done], "o", ms=4, alpha=0.5, label="trials")
-        front = sorted(pareto_front(done), key=lambda t: pd_fa(t)[1])
-        ax.plot([pd_fa(t)[1] for t in front], [pd_fa(t)[0] for t in front], "o-", color="C3", label="Pareto front")
-        for t in front:
-            ax.annotate(str(t.number), pd_fa(t)[::-1], fontsize=7)
-        ax.set_xlabel("false tracks per frame (tune clips)")
-        ax.set_ylabel("Pd (tune clips)")
-        ax.grid(alpha=0.3)
-        ax.legend(fontsize=8)
-        fig.tight_layout()
-        files.append(folder.path / "pareto.png")
-        _save(fig, files[-1], folder)
-    if importance:
-        fig, ax = plt.subplots(figsize=(6, 0.4 * len(importance) + 1.2))
-        names = list(importance)[::-1]
-        ax.barh(names, [importance[k] for k in names])
-        ax.set_xlabel(f"importance for {metrics[0]} (PED-ANOVA)")
-        fig.tight_layout()
-        files.append(folder.path / "importance.png")
-        _save(fig, files[-1], folder)
-    if has_val:
-        fig, axes = plt.subplots(1, len(metrics), figsize=(4.5 * len(metrics), 4), squeeze=False)
-        for ax, m in zip(axes[0], metrics):
-            x = [t.user_attrs["tune"][m] for t in done]
-            y = [t.user_attrs["validate"][m] for t in done]
-            ax.plot(x, y, "o", ms=4)
-            finite = [v for v in x + y if math.isfinite(v)]
-            if finite:
-                lo, hi = min(finite), max(finite)
-                ax.plot([lo, hi], [lo, hi], "--", color="grey", lw=1)
-            ax.set_xlabel(f"{m}, tune clips")
-            ax.set_ylabel(f"{m}, validation clips")
-            ax.grid(alpha=0.3)
-        fig.tight_layout()
-        files.append(folder.path / "tune_vs_validation.png")
-        _save(fig, files[-1], folder)
-    return files
-
-
-def _save(fig: Any, path: Path, folder: StudyFolder) -> None:
-    import matplotlib.pyplot as plt
-
-    from wfviz.io.outputs import temp_path, replace_into
-
-    tmp = temp_path(folder.claim(path))
-    try:
-        fig.savefig(tmp, dpi=110, format="png")
-        replace_into(tmp, path)
-    finally:
-        plt.close(fig)
-        tmp.unlink(missing_ok=True)
-
-
 def _importance(trials: list[Any], settings: StudySettings) -> dict[str, float]:
     """PED-ANOVA importance of each parameter for the (first) objective (S. Watanabe et al.,
     "PED-ANOVA: efficiently quantifying hyperparameter importance in arbitrary subspaces",
@@ -245,6 +155,23 @@ def _importance(trials: list[Any], settings: StudySettings) -> dict[str, float]:
         return {}
 
 
+def importance_section(importance: dict[str, float], trials: int, metric: str) -> list[str]:
+    """The importance section: the table, the number of completed ``trials`` it rests on and,
+    below :data:`IMPORTANCE_TRIALS`, that it is a hint; a line saying why when there is none."""
+    top = max(1, math.ceil(TARGET_QUANTILE * trials))
+    md = [f"## Parameter importance (PED-ANOVA, for {metric})", ""]
+    if not importance:
+        return md + [f"Not computed: {trials} completed trial(s) (it needs at least 4, and 2 parameters searched).", ""]
+    md += [f"From {trials} completed trials: how differently each parameter is spread in the best "
+           f"{100 * TARGET_QUANTILE:.0f} % of them ({top} trial{'s' if top > 1 else ''}) than in all of them."]
+    if trials < IMPORTANCE_TRIALS:
+        md[-1] += (f" **With fewer than {IMPORTANCE_TRIALS} trials this is a hint, not a finding**: the best "
+                   f"{top} decide it, and another seed can reorder it. Run more trials before dropping a "
+                   "parameter from the space.")
+    md += ["", "| parameter | importance |", "|---|---:|"]
+    return md + [f"| {k} | {v:.3f} |" for k, v in importance.items()] + [""]
+
+
 def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings, folds: int = 0) -> list[Path]:
     """Write ``report.md`` and its plots; returns the files."""
     metrics, directions = OBJECTIVES[settings.objective]
@@ -253,7 +180,7 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
     tune_clips = [c.label for c in settings.clips if c.role == "tune"]
     val_clips = [c.label for c in settings.clips if c.role == "validate"]
     importance = _importance(trials, settings)
-    plots = _plots(folder, trials, settings, importance)
+    plots = write_plots(folder, trials, settings, importance, (ranked(trials, settings.objective) or [None])[0])
     md = [f"# Tuning study: tracker `{settings.tracker}`, objective `{settings.objective}`", "",
           f"- tune clips: {', '.join(tune_clips)}",
           f"- validation clips: {', '.join(val_clips) if val_clips else 'none'}"
@@ -268,26 +195,12 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
     best = ranked(trials, settings.objective)
     base = [t for t in done if t.user_attrs.get("base")]
     shown = base + [t for t in (best[:1] if settings.objective != "pareto" else pareto_front(done)) if t not in base]
-    md += ["## Tune and validation scores", ""]
     roles = ["tune"] + (["validate"] if val_clips else [])
-    head = "| trial | " + " | ".join(f"{r} {m}" for r in roles for m in METRICS)
-    head += " | gap (tune − validation) " + metrics[0] if val_clips else ""
-    md += [head + " |", "|" + "---|" * (1 + len(roles) * len(METRICS) + (1 if val_clips else 0))]
-    for t in shown:
-        name = _trial_name(t, best[0])
-        row = f"| {name} | " + " | ".join(_f(t.user_attrs[r][m]) for r in roles for m in METRICS)
-        if val_clips:
-            row += f" | {_f(t.user_attrs['tune'][metrics[0]] - t.user_attrs['validate'][metrics[0]], '+.3f')}"
-        md.append(row + " |")
-    md.append("")
-    if val_clips and best and base and settings.objective != "pareto":
-        b, d0 = best[0], base[0]
-        gain_t = b.user_attrs["tune"][metrics[0]] - d0.user_attrs["tune"][metrics[0]]
-        gain_v = b.user_attrs["validate"][metrics[0]] - d0.user_attrs["validate"][metrics[0]]
-        verdict = ("holds on the validation clips" if gain_v >= 0 else
-                   "does **not** hold on the validation clips (the search fitted the tune clips)")
-        md += [f"The best trial gains {gain_t:+.3f} {metrics[0]} over the base on the tune clips and "
-               f"{gain_v:+.3f} on the validation clips: the gain {verdict}.", ""]
+    gains = TrialGains(base[0] if base else None, {"tune": tune_clips, "validate": val_clips})
+    md += scores_section(shown, best[0] if best else None, gains, metrics[0], roles)
+    if best and settings.objective != "pareto":
+        sentence = verdict(best[0], gains, metrics[0], bool(val_clips))
+        md += [sentence, ""] if sentence else []
     if done:
         md += _where_pd_went(done, base, best, settings, val_clips)
     if folds >= 2 and not val_clips and done and len(tune_clips) >= 2:
@@ -296,21 +209,10 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
                "For each fold the trial that scores best on the other folds is chosen and scored on the "
                "held-out fold. The sampler saw every clip, so this checks the choice of trial, not "
                "the search; `--validate` clips are the stricter check.", "", *lines, "",
-               f"Mean {metrics[0]}: {_f(ins)} on the folds that chose, {_f(outs)} held out "
-               f"(gap {_f(ins - outs, '+.3f')}).", ""]
-    md += [f"## Best {min(SHOWN, len(best))} trials", ""]
-    names = settings.space.names
-    md += ["| trial | " + " | ".join(f"{m}" for m in metrics) + " | " + " | ".join(names) + " | s |",
-           "|" + "---|" * (2 + len(metrics) + len(names))]
-    for t in best[:SHOWN]:
-        md.append(f"| {t.number} | " + " | ".join(_f(v) for v in t.values) + " | "
-                  + " | ".join(_f(t.params.get(n), ".4g") for n in names)
-                  + f" | {_f(t.user_attrs.get('seconds'), '.1f')} |")
-    md.append("")
-    if importance:
-        md += [f"## Parameter importance (PED-ANOVA, for {metrics[0]})", "",
-               "| parameter | importance |", "|---|---:|"]
-        md += [f"| {k} | {v:.3f} |" for k, v in importance.items()] + [""]
+               f"Mean {metrics[0]}: {num(ins)} on the folds that chose, {num(outs)} held out "
+               f"(gap {num(ins - outs, '+.3f')}).", ""]
+    md += best_section(best, SHOWN, gains, metrics, settings.space.names, bool(val_clips))
+    md += importance_section(importance, len(done), metrics[0])
     if failed:
         md += ["## Failed trials", ""] + [f"- trial {t.number}: {t.user_attrs.get('error', 'failed')}"
                                           for t in sorted(failed, key=lambda t: t.number)] + [""]

@@ -299,6 +299,8 @@ def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[s
         trial.set_user_attr("validate", mean_scores(outcome.scores, valid_labels))
     if outcome.causes:
         trial.set_user_attr("causes", causes_attr(outcome.causes, tune_labels, valid_labels))
+    if outcome.frames:
+        trial.set_user_attr("frames", outcome.frames)
     trial.set_user_attr("seconds", outcome.seconds)
     values = [tuned[m] for m in metrics]
     if not all(math.isfinite(v) for v in values):

@@ -39,8 +39,10 @@ class TrialTask:
 @dataclass(frozen=True)
 class TrialOutcome:
     """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, its wall time, the
-    signal that cut it when it ran in the study's own process (its run caught it), and where its
-    Pd went on each clip (``causes``: {clip label: :func:`cause_counts`})."""
+    signal that cut it when it ran in the study's own process (its run caught it), where its
+    Pd went on each clip (``causes``: {clip label: :func:`cause_counts`}) and the counts behind
+    its scores frame by frame (``frames``: {clip label: :func:`wfviz.tune.significance.pack`
+    of :func:`wfviz.evaluate.evaluate_by_frame`'s counts}), for the report's intervals."""
 
     number: int
     scores: dict[str, dict[str, float]] | None
@@ -48,6 +50,7 @@ class TrialOutcome:
     seconds: float
     signal: int | None = None
     causes: dict[str, dict[str, Any]] | None = None
+    frames: dict[str, list[list[int]]] | None = None
 
 
 def cause_counts(summary: Any) -> dict[str, Any]:
@@ -118,14 +121,16 @@ def _track(source: Any, tracker: Any, task: TrialTask, csv_path: Path, truth: Pa
 
 def _run(task: TrialTask) -> TrialOutcome:
     from wfviz.config import config_from_dict
-    from wfviz.evaluate import evaluate
+    from wfviz.evaluate import evaluate_by_frame
     from wfviz.io.clip import open_clip
     from wfviz.trackers import TRACKERS, config_class, make_tracker
     from wfviz.tune.cache import cacheable, replay
+    from wfviz.tune.significance import pack
 
     t0 = time.perf_counter()
     scores: dict[str, dict[str, float]] = {}
     causes: dict[str, dict[str, Any]] = {}
+    frames: dict[str, list[list[int]]] = {}
     try:
         config = config_from_dict(task.config, config_class(task.tracker))
         work = Path(task.work)
@@ -142,7 +147,8 @@ def _run(task: TrialTask) -> TrialOutcome:
                 if summary.interrupted:
                     return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0,
                                         summary.signal)
-                result = evaluate(csv_path, clip.truth, gate=task.gate)
+                result, counts = evaluate_by_frame(csv_path, clip.truth, gate=task.gate)
+                frames[clip.label] = pack(counts)
             finally:
                 csv_path.unlink(missing_ok=True)
             scores[clip.label] = {"mota": result.mota, "idf1": result.idf1, "hota": result.hota, "pd": result.pd,
@@ -153,7 +159,7 @@ def _run(task: TrialTask) -> TrialOutcome:
         where = traceback.extract_tb(exc.__traceback__)[-1]
         error = f"{type(exc).__name__}: {exc} ({Path(where.filename).name}:{where.lineno})"
         return TrialOutcome(task.number, None, error.replace("\n", " "), time.perf_counter() - t0)
-    return TrialOutcome(task.number, scores, None, time.perf_counter() - t0, causes=causes)
+    return TrialOutcome(task.number, scores, None, time.perf_counter() - t0, causes=causes, frames=frames)
 
 
 def mean_scores(scores: dict[str, dict[str, float]], labels: list[str]) -> dict[str, float]:
