@@ -8,7 +8,9 @@ the trial's number. The trials depend only on the seed, ``workers`` and what fin
 so a resumed study (the journal ``study.journal`` in the output folder), a local pool and a
 Ray cluster all give the same trials. Validation clips are run and scored in every trial but
 never reach the sampler. Trial 0 is the base configuration (the defaults), so every study
-reports where it started.
+reports where it started. Constraints (:mod:`wfviz.tune.constraints`) are set on each
+completed trial for the sampler and the choice of the best; with ``prune`` a trial stops once
+its tune clips show it significantly worse than the best so far (:mod:`wfviz.tune.pruning`).
 """
 
 from __future__ import annotations

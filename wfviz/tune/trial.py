@@ -138,6 +138,7 @@ def _run(task: TrialTask) -> TrialOutcome:
     causes: dict[str, dict[str, Any]] = {}
     frames: dict[str, list[list[int]]] = {}
     step = 0  # tune clips run
+    last = sum(c.role == "tune" for c in task.clips) - 1  # after the last one a trial has its score
     try:
         pruner = ClipPruner(task.prune) if task.prune is not None else None
         config = config_from_dict(task.config, config_class(task.tracker))
@@ -161,7 +162,7 @@ def _run(task: TrialTask) -> TrialOutcome:
                 csv_path.unlink(missing_ok=True)
             scores[clip.label] = {"mota": result.mota, "idf1": result.idf1, "hota": result.hota, "pd": result.pd,
                                   "fa": result.fa_per_frame, "idsw": float(result.id_switches)}
-            if pruner is not None and clip.role == "tune":
+            if pruner is not None and clip.role == "tune" and step < last:
                 if pruner.should_stop(step, scores[clip.label][pruner.metric]):
                     return TrialOutcome(task.number, scores, None, time.perf_counter() - t0, causes=causes,
                                         frames=frames, pruned=True)
