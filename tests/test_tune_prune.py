@@ -51,7 +51,7 @@ def test_a_constraint_keeps_trials_that_miss_it_from_being_chosen(tmp_path: Path
 @pytest.mark.parametrize("text, words", [
     ("fa_per_frame<0.1", ["use <= or >="]),
     ("fa_per_frams<=0.1", ["unknown metric", "did you mean 'fa_per_frame'"]),
-    ("hota>=0.5", ["unknown metric", "pd, fa_per_frame, mota, idf1, id_switches"]),
+    ("deta>=0.5", ["unknown metric", "pd, fa_per_frame, mota, idf1, hota, id_switches"]),
     ("fa_per_frame<=abc", ["'abc' is not a number"]),
     ("fa_per_frame<=nan", ["finite"]),
     ("fa_per_frame", ["expected METRIC<=VALUE"]),

@@ -590,7 +590,7 @@ def tune(
     stop: StopOpt = None,
     gate: GateOpt = 3.0,
     no_cache: Annotated[bool, typer.Option("--no-cache", help="Run every trial's front end again (the same results, slower; for timing the cache).")] = False,
-    constraint: Annotated[Optional[list[str]], typer.Option("--constraint", metavar="<METRIC<=VALUE>", help="A bound the chosen trial must meet, on the metric averaged over the tune clips: METRIC<=VALUE or METRIC>=VALUE, METRIC one of pd, fa_per_frame, mota, idf1, id_switches (repeat for more). E.g. --constraint \"fa_per_frame<=0.1\" --objective mota.", show_default=False)] = None,
+    constraint: Annotated[Optional[list[str]], typer.Option("--constraint", metavar="<METRIC<=VALUE>", help="A bound the chosen trial must meet, on the metric averaged over the tune clips: METRIC<=VALUE or METRIC>=VALUE, METRIC one of pd, fa_per_frame, mota, idf1, hota, id_switches (repeat for more). E.g. --constraint \"fa_per_frame<=0.1\" --objective mota.", show_default=False)] = None,
     prune: Annotated[bool, typer.Option("--prune", help="Stop a trial once its tune clips so far show it significantly worse than the best trial (Wilcoxon signed-rank, p < 0.1; clips in a seeded order, the same for every trial). Worth it with many tune clips; not with pareto.")] = False,
     print_space: Annotated[bool, typer.Option("--print-space", help="Print the tracker's default search space as TOML and exit.")] = False,
 ) -> None:
@@ -632,7 +632,7 @@ def tune(
 
     constraints = parse_constraints(list(constraint or []))
     if prune and objective == "pareto":
-        raise ValueError("--prune: needs one objective (mota, idf1 or pd), not pareto")
+        raise ValueError("--prune: needs one objective (mota, idf1, hota or pd), not pareto")
     base = load_config(config, cls)
     from wfviz.tune.session import prepare, tune as run_tune
 

@@ -14,7 +14,7 @@ from typing import Any
 #: metric a constraint may bound (``wfviz eval``'s names) -> the trial's metric
 #: (:data:`wfviz.tune.trial.METRICS`, the short names of trials.csv, also accepted)
 CONSTRAINT_METRICS: dict[str, str] = {
-    "pd": "pd", "fa_per_frame": "fa", "mota": "mota", "idf1": "idf1", "id_switches": "idsw",
+    "pd": "pd", "fa_per_frame": "fa", "mota": "mota", "idf1": "idf1", "hota": "hota", "id_switches": "idsw",
 }
 _ALIASES = {short: name for name, short in CONSTRAINT_METRICS.items()}
 _FORM = re.compile(r"^\s*([A-Za-z_][A-Za-z0-9_]*)\s*(<=|>=|=<|=>|<|>|==|=)\s*(\S+)\s*$")
