@@ -359,12 +359,16 @@ def _refusal(root: Path, reason: str, value: int) -> tuple[tuple[str, ...], tupl
         return (), clips, "study.journal"
     if reason == "ray":
         return ("--ray", "local"), clips, "needs Ray"
+    if reason == "constraint":  # a resume with a constraint the study was not run under
+        return ("--constraint", f"fa_per_frame<={value / 10:g}"), clips, "constraints differ"
+    if reason == "bad constraint":
+        return ("--constraint", ["fa_per_frame<0.1", "speed<=3", "pd>=x"][value % 3]), clips, "--constraint"
     assert reason == "locked"
     return (), clips, "in use"
 
 
 REASONS = ["stop", "tracker", "clips", "validate", "space", "objective", "seed", "gate", "config", "foreign",
-           "input inside", "journal", "ray", "locked"]
+           "input inside", "journal", "ray", "locked", "constraint", "bad constraint"]
 
 
 def _ray_missing() -> bool:

@@ -580,7 +580,7 @@ def tune(
     space: Annotated[Optional[Path], typer.Option("--space", help="Search space TOML (default: the tracker's; see --print-space).")] = None,
     config: Annotated[Optional[Path], typer.Option("--config", help="Configuration the trials start from (default: the defaults); trial 0 runs it as it is.")] = None,
     trials: Annotated[int, typer.Option("--trials", min=1, help="Finished trials the study should have (a resumed study adds the rest).")] = 20,
-    objective: Annotated[str, typer.Option("--objective", help="mota, idf1, hota (maximised) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
+    objective: Annotated[str, typer.Option("--objective", help="mota, idf1, hota, pd (maximised; pd with a --constraint on fa_per_frame) or pareto (Pd up, false tracks per frame down), averaged over the clips.")] = "mota",
     validate: Annotated[Optional[list[str]], typer.Option("--validate", metavar="<clip>", help="A clip scored in every trial but never used to choose (repeat for more).", show_default=False)] = None,
     folds: Annotated[int, typer.Option("--folds", min=0, help="Without --validate: leave-clips-out cross-validation of the chosen trial over K folds of the tune clips (report.md).")] = 0,
     workers: Annotated[Optional[int], typer.Option("--workers", min=1, help="Trials run at a time (local processes, or Ray tasks with --ray). Default: this machine's cores.", show_default=False)] = None,
@@ -590,6 +590,8 @@ def tune(
     stop: StopOpt = None,
     gate: GateOpt = 3.0,
     no_cache: Annotated[bool, typer.Option("--no-cache", help="Run every trial's front end again (the same results, slower; for timing the cache).")] = False,
+    constraint: Annotated[Optional[list[str]], typer.Option("--constraint", metavar="<METRIC<=VALUE>", help="A bound the chosen trial must meet, on the metric averaged over the tune clips: METRIC<=VALUE or METRIC>=VALUE, METRIC one of pd, fa_per_frame, mota, idf1, hota, id_switches (repeat for more). E.g. --constraint \"fa_per_frame<=0.1\" --objective mota.", show_default=False)] = None,
+    prune: Annotated[bool, typer.Option("--prune", help="Stop a trial once its tune clips so far show it significantly worse than the best trial (Wilcoxon signed-rank, p < 0.1; clips in a seeded order, the same for every trial). Worth it with many tune clips; not with pareto.")] = False,
     print_space: Annotated[bool, typer.Option("--print-space", help="Print the tracker's default search space as TOML and exit.")] = False,
 ) -> None:
     """Search a tracker's parameters against ground truth (Optuna), validate on held-back clips, link every trial to its scores and recordings."""
@@ -626,6 +628,11 @@ def tune(
         raise ValueError("--folds and --validate: choose one (validation clips are the stricter check)")
     if folds > len(clips):
         raise ValueError(f"--folds {folds}: more folds than tune clips ({len(clips)})")
+    from wfviz.tune.constraints import parse_constraints
+
+    constraints = parse_constraints(list(constraint or []))
+    if prune and objective == "pareto":
+        raise ValueError("--prune: needs one objective (mota, idf1, hota or pd), not pareto")
     base = load_config(config, cls)
     from wfviz.tune.session import prepare, tune as run_tune
 
@@ -638,7 +645,8 @@ def tune(
         err.print(f"wfviz: note: {note}", highlight=False, markup=False, soft_wrap=True)
     settings = prepare(tracker, list(clips), list(validate or []), out_dir, search, base, objective=objective,
                        trials=trials, seed=seed, workers=n_workers, stop=stop, gate=gate,
-                       use_ray=use_ray, ray_address=address, cache=not no_cache)
+                       use_ray=use_ray, ray_address=address, cache=not no_cache, constraints=constraints,
+                       prune=prune)
     metric = OBJECTIVES[objective][0][0]
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[best]}"), TimeRemainingColumn(),
@@ -662,22 +670,28 @@ def tune(
 
 
 def _tune_summary(result, metric: str) -> None:
+    from wfviz.tune.constraints import feasible
     from wfviz.tune.outputs import ranked
+    from wfviz.tune.study import outcome_phrases
     from wfviz.tune.trial import dominant
 
     state, settings = result.state, result.settings
     done = [t for t in state.trials if t.values is not None]
-    failed = len(state.trials) - len(done)
+    failed = sum(t.state.name == "FAIL" for t in state.trials)
+    infeasible, pruned = outcome_phrases(state.trials, settings)
     how = (f"[yellow]interrupted by {signal.Signals(result.signal).name}[/]" if result.signal is not None
            else "done")
-    out.print(f"{how}: {len(state.trials)} trials ({len(done)} scored, {failed} failed; {state.ran} this run)",
-              highlight=False)
+    out.print(f"{how}: {len(state.trials)} trials ({len(done)} scored{infeasible}, {pruned}{failed} failed; "
+              f"{state.ran} this run)", highlight=False)
     for note in state.notes:
         out.print(f"  note: {note}", highlight=False, markup=False)
     has_val = any(c.role == "validate" for c in settings.clips)
     best = ranked(state.trials, settings.objective)
     base = [t for t in done if t.user_attrs.get("base")]
     rows = base + [t for t in best[:5] if t not in base]
+    if done and not best and settings.constraints:
+        out.print("  no completed trial meets the constraints: no best configuration written",
+                  highlight=False, markup=False)
     for t in rows:
         tune_s = t.user_attrs["tune"]
         line = f"  trial {t.number:>4}{' (base)' if t.user_attrs.get('base') else '       '}  tune " + \
@@ -688,6 +702,8 @@ def _tune_summary(result, metric: str) -> None:
         miss = dominant((t.user_attrs.get("causes") or {}).get("tune"))
         if miss:
             line += f"  | most misses: {miss}"
+        if not feasible(t):
+            line += "  | outside the constraints"
         out.print(line, highlight=False, markup=False)
     for f in result.files:
         if f.suffix in (".toml", ".csv", ".md", ".rrd") and f.parent == result.files[0].parent:

@@ -122,8 +122,10 @@ def record_study(path: Path, trials: list[Any], settings: StudySettings) -> Path
         for t in sorted(trials, key=lambda t: t.number):
             rec.set_time("trial", sequence=t.number)
             if t.values is None:
-                rec.log("study/log", rr.TextLog(f"trial {t.number} failed: {t.user_attrs.get('error', '')}",
-                                                level="WARN"))
+                cut = t.user_attrs.get("pruned")
+                text = (f"trial {t.number} pruned after {cut['after']} of {cut['of']} tune clips" if cut
+                        else f"trial {t.number} failed: {t.user_attrs.get('error', '')}")
+                rec.log("study/log", rr.TextLog(text, level="INFO" if cut else "WARN"))
                 continue
             done.append(t)
             _log_trial(rec, t, settings, roles)

@@ -109,14 +109,16 @@ def log_step(rec: rr.RecordingStream, x: Axis, y: Axis, done: list[Any], objecti
                                                   colors=[DEFAULTS_COLOR], radii=rr.Radius.ui_points(_SIZES["defaults"]),
                                                   show_labels=False, draw_order=30.0))
     pareto = objective == "pareto"
-    best = front if pareto else ranked(pts, objective)[:1]
-    names = [f"trial {t.number}" for t in best] if pareto else [f"best: trial {best[0].number}"]
-    rec.log(f"{ORIGIN}/best", rr.Points2D([scene[t.number] for t in best], labels=names, colors=[BEST_COLOR],
-                                          radii=rr.Radius.ui_points(_SIZES["best"]), show_labels=pareto, draw_order=40.0))
+    best = front if pareto else ranked(pts, objective)[:1]  # none while no trial meets the constraints
+    if best:
+        names = [f"trial {t.number}" for t in best] if pareto else [f"best: trial {best[0].number}"]
+        rec.log(f"{ORIGIN}/best", rr.Points2D([scene[t.number] for t in best], labels=names, colors=[BEST_COLOR],
+                                              radii=rr.Radius.ui_points(_SIZES["best"]), show_labels=pareto,
+                                              draw_order=40.0))
     base = [t for t in pts if t.user_attrs.get("base")]
     entries = [("trials", f"trials ({len(pts)})"), ("front", "Pareto front")]
     entries += [("defaults", f"defaults: trial {base[0].number}")] if base else []
-    entries += [("best", "best: the front" if pareto else f"best: trial {best[0].number}")]
+    entries += [("best", "best: the front" if pareto else f"best: trial {best[0].number}")] if best else []
     log_legend(rec, entries)
 
 

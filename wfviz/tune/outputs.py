@@ -9,6 +9,7 @@ import math
 from pathlib import Path
 from typing import Any
 
+from wfviz.tune.constraints import feasible
 from wfviz.tune.folder import StudyFolder
 from wfviz.tune.space import best_toml, make_config
 from wfviz.tune.study import StudySettings
@@ -16,9 +17,10 @@ from wfviz.tune.trial import METRICS, dominant
 
 
 def ranked(trials: list[Any], objective: str) -> list[Any]:
-    """Completed trials, best first: by the objective (ties: the earlier trial); for
-    ``pareto`` the front (non-dominated in Pd and false tracks) by Pd, then the rest by Pd."""
-    done = [t for t in trials if t.values is not None]
+    """Completed trials that meet the study's constraints (pruned ones have no score), best
+    first: by the objective (ties: the earlier trial); for ``pareto`` the front (non-dominated in
+    Pd and false tracks) by Pd, then the rest by Pd."""
+    done = [t for t in trials if t.values is not None and t.state.name == "COMPLETE" and feasible(t)]
     if objective != "pareto":
         return sorted(done, key=lambda t: (-t.values[0], t.number))
     front = pareto_front(done)
@@ -35,9 +37,9 @@ def pd_fa(trial: Any) -> tuple[float, float]:
 
 
 def pareto_front(trials: list[Any]) -> list[Any]:
-    """Completed trials no other trial beats on both Pd (higher) and false tracks per frame
-    (lower) on the tune clips."""
-    done = [(t, pd_fa(t)) for t in trials if t.values is not None]
+    """Completed trials that meet the study's constraints and no other such trial beats on both
+    Pd (higher) and false tracks per frame (lower) on the tune clips."""
+    done = [(t, pd_fa(t)) for t in trials if t.values is not None and feasible(t)]
 
     def beaten(a: tuple[float, float]) -> bool:
         return any(b[0] >= a[0] and b[1] <= a[1] and (b[0] > a[0] or b[1] < a[1]) for _, b in done)
@@ -51,13 +53,15 @@ def _num(v: Any) -> str:
 
 
 def trials_csv(trials: list[Any], settings: StudySettings) -> str:
-    """``trials.csv``: number, state, seconds, error, every parameter, every metric averaged
+    """``trials.csv``: number, state (complete, pruned, fail), seconds, error, whether it meets
+    the constraints (with ``--constraint``), every parameter, every metric averaged
     over the tune clips and the validation clips, the dominant miss and false-track causes over
     each (empty: none, or a trial run before causes were counted), then every metric per clip."""
     params = settings.space.names
     labels = [c.label for c in settings.clips]
     roles = ["tune"] + (["validate"] if any(c.role == "validate" for c in settings.clips) else [])
-    head = (["trial", "state", "seconds", "base", "error"] + params
+    checked = bool(settings.constraints)  # a feasible column: 1 meets every --constraint, 0 not
+    head = (["trial", "state", "seconds", "base", "error"] + (["feasible"] if checked else []) + params
             + [f"{r}_{m}" for r in roles for m in METRICS]
             + [f"{r}_dominant_{part}" for r in roles for part in ("miss", "false")]
             + [f"{label}_{m}" for label in labels for m in METRICS])
@@ -68,6 +72,8 @@ def trials_csv(trials: list[Any], settings: StudySettings) -> str:
         ua = t.user_attrs
         row = [t.number, t.state.name.lower(), _num(ua.get("seconds")), int(bool(ua.get("base"))),
                ua.get("error", "")]
+        if checked:
+            row += [int(feasible(t)) if t.state.name == "COMPLETE" else ""]
         row += [_num(t.params.get(p)) for p in params]
         for r in roles:
             row += [_num(ua.get(r, {}).get(m)) for m in METRICS]

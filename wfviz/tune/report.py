@@ -14,7 +14,7 @@ from wfviz.tune.folder import StudyFolder
 from wfviz.tune.gains import TrialGains, best_section, num, scores_section, trial_name, verdict
 from wfviz.tune.outputs import pareto_front, ranked
 from wfviz.tune.plots import write_plots
-from wfviz.tune.study import OBJECTIVES, StudySettings
+from wfviz.tune.study import OBJECTIVES, StudySettings, outcome_phrases
 from wfviz.tune.trial import dominant, mean_scores
 
 SHOWN = 10  # trials in the report's table
@@ -176,7 +176,8 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
     """Write ``report.md`` and its plots; returns the files."""
     metrics, directions = OBJECTIVES[settings.objective]
     done = [t for t in trials if t.values is not None]
-    failed = [t for t in trials if t.values is None]
+    failed = [t for t in trials if t.state.name == "FAIL"]
+    infeasible, pruned = outcome_phrases(trials, settings)
     tune_clips = [c.label for c in settings.clips if c.role == "tune"]
     val_clips = [c.label for c in settings.clips if c.role == "validate"]
     importance = _importance(trials, settings)
@@ -185,7 +186,7 @@ def write_report(folder: StudyFolder, trials: list[Any], settings: StudySettings
           f"- tune clips: {', '.join(tune_clips)}",
           f"- validation clips: {', '.join(val_clips) if val_clips else 'none'}"
           + ("" if val_clips else " (give `--validate CLIP` for an honest check; see below)"),
-          f"- trials: {len(done)} completed, {len(failed)} failed; seed {settings.seed}, "
+          f"- trials: {len(done)} completed{infeasible}, {pruned}{len(failed)} failed; seed {settings.seed}, "
           f"{settings.workers} at a time; frames "
           + (f"0–{settings.stop - 1}" if settings.stop else "all") + f"; match gate {settings.gate:g} px"
           + " (or inside the truth's box where it has w,h)",

@@ -8,7 +8,9 @@ the trial's number. The trials depend only on the seed, ``workers`` and what fin
 so a resumed study (the journal ``study.journal`` in the output folder), a local pool and a
 Ray cluster all give the same trials. Validation clips are run and scored in every trial but
 never reach the sampler. Trial 0 is the base configuration (the defaults), so every study
-reports where it started.
+reports where it started. Constraints (:mod:`wfviz.tune.constraints`) are set on each
+completed trial for the sampler and the choice of the best; with ``prune`` a trial stops once
+its tune clips show it significantly worse than the best so far (:mod:`wfviz.tune.pruning`).
 """
 
 from __future__ import annotations
@@ -24,7 +26,9 @@ from typing import Any
 from wfviz.config import ConfigError
 from wfviz.run import StopSignals
 from wfviz.tune.clips import StudyClip
+from wfviz.tune.constraints import Constraint
 from wfviz.tune.folder import JOURNAL
+from wfviz.tune.pruning import prune_rule, study_order
 from wfviz.tune.space import Param, SearchSpace, config_dict, make_config
 from wfviz.tune.trial import TrialOutcome, TrialTask, mean_scores, sum_counts
 from wfviz.tune.workers import make_pool
@@ -34,6 +38,7 @@ OBJECTIVES: dict[str, tuple[tuple[str, ...], tuple[str, ...]]] = {
     "mota": (("mota",), ("maximize",)),
     "idf1": (("idf1",), ("maximize",)),
     "hota": (("hota",), ("maximize",)),
+    "pd": (("pd",), ("maximize",)),  # with a --constraint on false tracks: Pd under a budget
     "pareto": (("pd", "fa"), ("maximize", "minimize")),
 }
 STUDY_NAME = "wfviz-tune"
@@ -60,14 +65,20 @@ class StudySettings:
     use_ray: bool = False
     ray_address: str | None = None
     cache: bool = True  # replay prepared front-end frames (wfviz.tune.cache; the same results)
+    constraints: tuple[Constraint, ...] = ()  # bounds a trial must meet to be chosen
+    prune: bool = False  # stop hopeless trials early (wfviz.tune.pruning)
 
     def fingerprint(self) -> dict[str, Any]:
-        """What must not change between runs of one study."""
-        return {"tracker": self.tracker, "objective": self.objective, "seed": self.seed,
-                "stop": self.stop, "gate": self.gate,
-                "clips": [[c.label, c.spec, str(c.truth), c.role] for c in self.clips],
-                "space": [p.__dict__ | {"choices": list(p.choices)} for p in self.space.params],
-                "fixed": self.space.fixed, "base": config_dict(self.base)}
+        """What must not change between runs of one study (the constraints only when there are
+        any, so that a study made before they existed resumes)."""
+        out = {"tracker": self.tracker, "objective": self.objective, "seed": self.seed,
+               "stop": self.stop, "gate": self.gate,
+               "clips": [[c.label, c.spec, str(c.truth), c.role] for c in self.clips],
+               "space": [p.__dict__ | {"choices": list(p.choices)} for p in self.space.params],
+               "fixed": self.space.fixed, "base": config_dict(self.base)}
+        if self.constraints:
+            out["constraints"] = [c.text for c in self.constraints]
+        return out
 
 
 @dataclass
@@ -100,7 +111,8 @@ def check_study(out: Path, settings: StudySettings) -> Any | None:
     stored = study.user_attrs.get("settings")
     now = json.loads(json.dumps(settings.fingerprint()))
     if stored != now:
-        diff = sorted(k for k in now if stored is None or stored.get(k) != now.get(k))
+        keys = set(now) | set(stored if isinstance(stored, dict) else {})
+        diff = sorted(k for k in keys if not isinstance(stored, dict) or stored.get(k) != now.get(k))
         raise ValueError(f"{out}: holds a study with other settings ({', '.join(diff)} differ); "
                          "resume it with the same command, or use another --out")
     return study
@@ -186,12 +198,12 @@ UNFINISHED = ("interrupted", "not finished (the study was stopped)")  # errors o
 
 
 def finished(study: Any) -> list[Any]:
-    """The study's trials that ended (completed, or failed on their own), in trial order;
-    trials cut short by Ctrl-C or a stopped run are left out (the study asks for others)."""
+    """The study's trials that ended (completed, pruned, or failed on their own), in trial
+    order; trials cut short by Ctrl-C or a stopped run are left out (the study asks for others)."""
     from optuna.trial import TrialState
 
     return [t for t in study.get_trials(deepcopy=False)
-            if t.state == TrialState.COMPLETE
+            if t.state in (TrialState.COMPLETE, TrialState.PRUNED)
             or (t.state == TrialState.FAIL and t.user_attrs.get("error") not in UNFINISHED)]
 
 
@@ -221,6 +233,8 @@ def run_study(settings: StudySettings, study: Any, work: Path,
         state.notes.append(f"{stale} trial(s) left running by a stopped run recorded as failed")
     tune_labels = [c.label for c in settings.clips if c.role == "tune"]
     valid_labels = [c.label for c in settings.clips if c.role == "validate"]
+    order = study_order(settings.clips, settings.seed)  # every trial runs its clips in this order
+    ordered_tune = [c.label for c in order if c.role == "tune"]
     from wfviz.trackers import config_class
 
     cls = config_class(settings.tracker)
@@ -236,6 +250,7 @@ def run_study(settings: StudySettings, study: Any, work: Path,
             while len(finished(study)) < settings.trials and not stop():
                 done = len(finished(study))
                 batch = min(settings.workers, settings.trials - done)
+                rule = prune_rule(finished(study), metrics[0], ordered_tune) if settings.prune else None
                 asked, tasks = [], []
                 for i in range(batch):
                     study.sampler = _sampler(settings, done + i)
@@ -250,11 +265,11 @@ def run_study(settings: StudySettings, study: Any, work: Path,
                         continue
                     asked.append(trial)
                     tasks.append(TrialTask(trial.number, settings.tracker, config_dict(config),
-                                           settings.clips, settings.stop, settings.gate,
-                                           str(work), settings.cache))
+                                           order, settings.stop, settings.gate,
+                                           str(work), settings.cache, rule))
                 outcomes = pool.run(tasks, stop) if tasks else []
-                for trial, outcome in zip(asked, outcomes):
-                    _tell(study, trial, outcome, metrics, tune_labels, valid_labels)
+                for trial, task, outcome in zip(asked, tasks, outcomes):
+                    _tell(study, trial, outcome, settings, tune_labels, valid_labels, task.prune)
                     state.ran += 1
                 state.trials = finished(study)
                 cut = any(o is None or o.error == "interrupted" for o in outcomes)
@@ -271,6 +286,21 @@ def run_study(settings: StudySettings, study: Any, work: Path,
     return state
 
 
+def outcome_phrases(trials: list[Any], settings: StudySettings) -> tuple[str, str]:
+    """For a summary of ``trials``: how many completed trials miss the constraints (" (2 outside
+    fa_per_frame<=0.1: never chosen)", or "") and how many were pruned ("3 pruned, ", or "")."""
+    from optuna.trial import TrialState
+
+    from wfviz.tune.constraints import feasible
+
+    done = [t for t in trials if t.state == TrialState.COMPLETE]
+    outside = sum(not feasible(t) for t in done)
+    pruned = sum(t.state == TrialState.PRUNED for t in trials)
+    bounds = ", ".join(c.text for c in settings.constraints)
+    return (f" ({outside} outside {bounds}: never chosen)" if settings.constraints else "",
+            f"{pruned} pruned, " if settings.prune or pruned else "")
+
+
 def causes_attr(causes: dict[str, dict[str, Any]], tune_labels: list[str],
                 valid_labels: list[str]) -> dict[str, Any]:
     """A trial's ``causes`` user attribute: where its Pd went (:func:`wfviz.tune.trial.cause_counts`)
@@ -282,10 +312,22 @@ def causes_attr(causes: dict[str, dict[str, Any]], tune_labels: list[str],
     return out
 
 
-def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[str, ...],
-          tune_labels: list[str], valid_labels: list[str]) -> None:
+def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, settings: StudySettings,
+          tune_labels: list[str], valid_labels: list[str], rule: Any) -> None:
+    """Record ``outcome`` in ``trial``: failed (its error), pruned (the clips it ran, ``pruned``:
+    after how many tune clips, against which trial) or completed (its scores, the causes, and
+    each constraint's violation, ``Trial.set_constraint``)."""
     from optuna.trial import TrialState
 
+    metrics = OBJECTIVES[settings.objective][0]
+    if outcome is not None and outcome.pruned and outcome.scores is not None:
+        trial.set_user_attr("scores", outcome.scores)
+        trial.set_user_attr("seconds", outcome.seconds)
+        ran = sum(label in outcome.scores for label in tune_labels)
+        trial.set_user_attr("pruned", {"after": ran, "of": len(tune_labels),
+                                       "against": rule.against if rule is not None else None})
+        study.tell(trial, state=TrialState.PRUNED)
+        return
     if outcome is None or outcome.scores is None:
         trial.set_user_attr("error", outcome.error if outcome is not None else "interrupted")
         if outcome is not None:
@@ -307,4 +349,12 @@ def _tell(study: Any, trial: Any, outcome: TrialOutcome | None, metrics: tuple[s
         trial.set_user_attr("error", "objective is not a number (no truth point in the scored frames?)")
         study.tell(trial, state=TrialState.FAIL)
         return
+    violations = {c.text: c.violation(tuned) for c in settings.constraints}
+    unknown = [k for k, v in violations.items() if not math.isfinite(v)]
+    if unknown:
+        trial.set_user_attr("error", f"constraint {unknown[0]}: the metric is not a number")
+        study.tell(trial, state=TrialState.FAIL)
+        return
+    for key, v in violations.items():
+        trial.set_constraint(key, v)
     study.tell(trial, values)

@@ -14,6 +14,7 @@ from pathlib import Path
 from typing import Any
 
 from wfviz.tune.clips import StudyClip
+from wfviz.tune.pruning import ClipPruner, PruneRule
 
 #: per-clip metrics of a trial (``wfviz eval``'s names): higher is better except ``fa`` and ``idsw``
 METRICS = ("mota", "idf1", "hota", "pd", "fa", "idsw")
@@ -24,7 +25,9 @@ class TrialTask:
     """What a worker needs: the trial ``number``, the tracker and its whole configuration (the
     TOML form), the clips, frames before ``stop``, the match ``gate`` and a folder for the
     trial's temporary tracks CSVs; ``cache``: replay the clips' prepared front-end frames where
-    the tracker allows (:mod:`wfviz.tune.cache`)."""
+    the tracker allows (:mod:`wfviz.tune.cache`); ``prune``: stop when the tune clips so far
+    show the trial significantly worse than the best (:mod:`wfviz.tune.pruning`; the tune clips
+    come first in ``clips``, in the study's order)."""
 
     number: int
     tracker: str
@@ -34,15 +37,17 @@ class TrialTask:
     gate: float
     work: str
     cache: bool = True  # replay prepared frames where the tracker allows (wfviz.tune.cache)
+    prune: PruneRule | None = None
 
 
 @dataclass(frozen=True)
 class TrialOutcome:
     """A trial's ``scores`` ({clip label: {metric: value}}) or its ``error``, its wall time, the
     signal that cut it when it ran in the study's own process (its run caught it), where its
-    Pd went on each clip (``causes``: {clip label: :func:`cause_counts`}) and the counts behind
+    Pd went on each clip (``causes``: {clip label: :func:`cause_counts`}), the counts behind
     its scores frame by frame (``frames``: {clip label: :func:`wfviz.tune.significance.pack`
-    of :func:`wfviz.evaluate.evaluate_by_frame`'s counts}), for the report's intervals."""
+    of :func:`wfviz.evaluate.evaluate_by_frame`'s counts}), for the report's intervals, and
+    whether it was ``pruned`` (then ``scores`` holds the clips it ran)."""
 
     number: int
     scores: dict[str, dict[str, float]] | None
@@ -51,6 +56,7 @@ class TrialOutcome:
     signal: int | None = None
     causes: dict[str, dict[str, Any]] | None = None
     frames: dict[str, list[list[int]]] | None = None
+    pruned: bool = False
 
 
 def cause_counts(summary: Any) -> dict[str, Any]:
@@ -131,7 +137,10 @@ def _run(task: TrialTask) -> TrialOutcome:
     scores: dict[str, dict[str, float]] = {}
     causes: dict[str, dict[str, Any]] = {}
     frames: dict[str, list[list[int]]] = {}
+    step = 0  # tune clips run
+    last = sum(c.role == "tune" for c in task.clips) - 1  # after the last one a trial has its score
     try:
+        pruner = ClipPruner(task.prune) if task.prune is not None else None
         config = config_from_dict(task.config, config_class(task.tracker))
         work = Path(task.work)
         work.mkdir(parents=True, exist_ok=True)
@@ -153,6 +162,11 @@ def _run(task: TrialTask) -> TrialOutcome:
                 csv_path.unlink(missing_ok=True)
             scores[clip.label] = {"mota": result.mota, "idf1": result.idf1, "hota": result.hota, "pd": result.pd,
                                   "fa": result.fa_per_frame, "idsw": float(result.id_switches)}
+            if pruner is not None and clip.role == "tune" and step < last:
+                if pruner.should_stop(step, scores[clip.label][pruner.metric]):
+                    return TrialOutcome(task.number, scores, None, time.perf_counter() - t0, causes=causes,
+                                        frames=frames, pruned=True)
+                step += 1
     except KeyboardInterrupt:
         return TrialOutcome(task.number, None, "interrupted", time.perf_counter() - t0)
     except Exception as exc:  # noqa: BLE001 - a failing trial is recorded and the study goes on
