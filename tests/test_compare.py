@@ -369,3 +369,16 @@ def test_screenshot_shows_both_runs_and_a_shared_plot(two_runs: Path) -> None:
     for i in range(2):
         near = np.abs(plots - np.array(run_color(i))).sum(axis=2) < 40
         assert near.sum() > 30, f"no series in run {i}'s colour in the plots"
+
+
+def test_the_first_targets_have_colours_far_apart():
+    """Golden-ratio hue steps: the first six targets' hues at least 0.09 of the circle apart
+    (one step of 7 ids, as before, put targets 1 and 4 on the same yellow)."""
+    import colorsys
+
+    from wfviz.record.colors import target_color, track_color
+
+    hues = [colorsys.rgb_to_hsv(*(c / 255 for c in target_color(t)))[0] for t in range(1, 7)]
+    gaps = [min(abs(a - b), 1 - abs(a - b)) for i, a in enumerate(hues) for b in hues[i + 1:]]
+    assert min(gaps) >= 0.09, gaps
+    assert all(target_color(t) != track_color(t) for t in range(1, 7))

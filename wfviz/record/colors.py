@@ -12,8 +12,8 @@ TRACK_SV = (0.85, 1.0)
 UNMATCHED_SV = (0.3, 0.75)
 
 
-def _hue_color(n: int, sv: tuple[float, float]) -> tuple[int, int, int]:
-    r, g, b = colorsys.hsv_to_rgb((n * 0.618033988749895) % 1.0, *sv)
+def _hue_color(n: int, sv: tuple[float, float], turn: float = 0.0) -> tuple[int, int, int]:
+    r, g, b = colorsys.hsv_to_rgb((n * 0.618033988749895 + turn) % 1.0, *sv)
     return int(r * 255), int(g * 255), int(b * 255)
 
 
@@ -24,8 +24,9 @@ def track_color(track_id: int) -> tuple[int, int, int]:
 
 
 def target_color(target_id: int) -> tuple[int, int, int]:
-    """A truth target's colour (hues apart from the tracks' of the same number)."""
-    return track_color(target_id * 7 + 3)
+    """A truth target's colour: golden-ratio hue steps from target to target (the first few
+    targets far apart), half a turn from the track of the same number."""
+    return _hue_color(target_id, TRACK_SV, 0.5)
 
 
 @functools.lru_cache(maxsize=8192)
