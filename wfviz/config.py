@@ -405,13 +405,16 @@ def load_config(path: str | Path | None, cls: type) -> Any:
         raise ConfigError(f"{path}: {exc}") from None
 
 
-def _toml_value(value: Any) -> str:
+def toml_value(value: Any) -> str:
+    """``value`` as TOML text (None, a value chosen at run time: ``"auto"``)."""
+    if value is None:
+        return '"auto"'
     if isinstance(value, bool):
         return "true" if value else "false"
     if isinstance(value, str):
         return f'"{value}"'
     if isinstance(value, tuple):
-        return "[" + ", ".join(_toml_value(v) for v in value) + "]"
+        return "[" + ", ".join(toml_value(v) for v in value) + "]"
     return repr(value)
 
 
@@ -425,7 +428,6 @@ def config_to_toml(config: Any) -> str:
         lines.insert(len(lines) - 1, f"# {doc}")
         for f in fields(sub):
             value = getattr(sub, f.name)
-            text = _toml_value(value) if value is not None else '"auto"'
-            lines.append(f"{f.name} = {text}")
+            lines.append(f"{f.name} = {toml_value(value)}")
         lines.append("")
     return "\n".join(lines)

@@ -11,7 +11,7 @@ from dataclasses import dataclass
 from typing import Any
 
 from wfviz.compare.runs import RunSpec
-from wfviz.config import _toml_value
+from wfviz.config import toml_value
 
 
 def flatten(config: Any, prefix: str = "") -> dict[str, str]:
@@ -23,7 +23,7 @@ def flatten(config: Any, prefix: str = "") -> dict[str, str]:
         if dataclasses.is_dataclass(value) and not isinstance(value, type):
             out.update(flatten(value, f"{prefix}{f.name}."))
         else:
-            out[f"{prefix}{f.name}"] = _toml_value(value) if value is not None else '"auto"'
+            out[f"{prefix}{f.name}"] = toml_value(value)
     return out
 
 

@@ -15,8 +15,8 @@ weight where few were measured). f1: a target missed this frame, its pixel the n
 value plus a significance uniform in [k - :data:`SPAN`, k] (a target just below the threshold,
 the dim ones the multi-frame stage exists for), the largest of it and the window's other pixels.
 Reads below the null's median count as the median (Huber's censoring). On Gaussian noise a dim
-target read at 3 σ under k = 4 gains about 2 nats, noise read at its typical 1.5 σ loses about
-1: a dim target's track is not deleted between its detections, a track that lost its target is
+target read at 3 σ under k = 4 gains about 2.4 nats, noise read at its typical 1.4 σ (the median)
+loses about 1.4: a dim target's track is not deleted between its detections, a track that lost its target is
 deleted sooner, a static-clutter track gains nothing (its change is noise).
 """
 

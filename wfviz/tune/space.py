@@ -22,7 +22,7 @@ from dataclasses import dataclass, fields
 from pathlib import Path
 from typing import Any, get_type_hints
 
-from wfviz.config import ConfigError, _closest, _coerce, _toml_value, config_from_dict, config_to_toml, read_toml
+from wfviz.config import ConfigError, _closest, _coerce, config_from_dict, config_to_toml, read_toml, toml_value
 
 
 @dataclass(frozen=True)
@@ -179,17 +179,17 @@ def space_to_toml(space: SearchSpace, tracker: str) -> str:
     for p in space.params:
         section, key = p.name.split(".", 1)
         if p.kind == "choice":
-            spec = "{ choices = [" + ", ".join(_toml_value(v) for v in p.choices) + "] }"
+            spec = "{ choices = [" + ", ".join(toml_value(v) for v in p.choices) + "] }"
         else:
             lo, hi = _ends(p)
-            spec = f"{{ low = {_toml_value(lo)}, high = {_toml_value(hi)}"
+            spec = f"{{ low = {toml_value(lo)}, high = {toml_value(hi)}"
             spec += ", log = true" if p.log else ""
             spec += f", step = {p.step}" if p.step not in (None, 1) else ""
             spec += " }"
         sections.setdefault(section, []).append(f"{key} = {spec}")
     for name, value in space.fixed.items():
         section, key = name.split(".", 1)
-        sections.setdefault(section, []).append(f"{key} = {_toml_value(value)}")
+        sections.setdefault(section, []).append(f"{key} = {toml_value(value)}")
     for section, body in sections.items():
         lines += ["", f"[{section}]", *body]
     return "\n".join(lines) + "\n"
