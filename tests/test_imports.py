@@ -134,3 +134,41 @@ def test_the_lowest_layers_import_nothing_above_them() -> None:
     for m in ("wfviz.config", "wfviz.hota", "wfviz.record_options"):
         assert graph[m] <= {"wfviz"}, (m, graph[m])
     assert graph["wfviz.evaluate"] <= {"wfviz", "wfviz.hota"}, graph["wfviz.evaluate"]
+
+
+_LOADED = """
+import atexit, sys
+def _dump():
+    sys.__stderr__.write("\\nMODULES " + " ".join(sorted(sys.modules)) + "\\n")
+atexit.register(_dump)
+sys.argv = ["wfviz", *sys.argv[1:]]
+from wfviz.entry import main
+main()
+"""
+
+
+def _modules_after(*args: str, cwd: Path) -> set[str]:
+    """The modules a whole ``wfviz ARGS`` process had imported when it ended."""
+    import subprocess
+    import sys
+
+    r = subprocess.run([sys.executable, "-c", _LOADED, *args], capture_output=True, text=True, cwd=cwd,
+                       env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, timeout=120)
+    assert r.returncode == 0, r.stderr
+    line = [ln for ln in r.stderr.splitlines() if ln.startswith("MODULES ")][-1]
+    return {m.split(".")[0] for m in line.split()[1:]}
+
+
+def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
+    """`wfviz --help` imports no numpy; `wfviz track` imports neither Rerun nor pandas, Optuna,
+    matplotlib (their import is most of a short run's start-up: docs/performance.md)."""
+    import numpy as np
+
+    heavy = {"rerun", "pandas", "optuna", "matplotlib", "motmetrics", "pyarrow"}
+    help_mods = _modules_after("--help", cwd=tmp_path)
+    assert not help_mods & (heavy | {"numpy", "cv2", "scipy"}), help_mods & (heavy | {"numpy", "cv2", "scipy"})
+    rng = np.random.default_rng(0)
+    np.save(tmp_path / "clip.npy", (1000 + rng.normal(0, 10, (3, 128, 160))).astype(np.uint16))
+    track_mods = _modules_after("track", "clip.npy", "--tracks", "t.csv", cwd=tmp_path)
+    assert "numpy" in track_mods and (tmp_path / "t.csv").is_file()  # the check can see what it looks for
+    assert not track_mods & heavy, track_mods & heavy

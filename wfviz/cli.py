@@ -8,7 +8,7 @@ import signal
 import sys
 import warnings
 from pathlib import Path
-from typing import Annotated, Optional
+from typing import TYPE_CHECKING, Annotated, Optional
 
 import typer
 from typer.core import TyperGroup
@@ -18,13 +18,14 @@ from rich.markup import escape
 from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
 from wfviz.config import ConfigError, config_to_toml
-import wfviz.synth  # noqa: F401 - registers synth: clips with open_clip
-from wfviz.io.clip import BadFrameError, ClipError, ClipNote, ClipWarning, display, open_clip
-from wfviz.io.frames import Clip
-from wfviz.io.outputs import OutputError, check_not_inputs, check_writable, remove_stale, replace_into, temp_path
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY, RecorderOptions
-from wfviz.run import RunSummary, run
 from wfviz.trackers import TRACKERS, config_class, load_tracker
+
+# Everything that needs numpy, OpenCV, SciPy or Rerun is imported by the command that uses it, so
+# `wfviz --help` starts in a fraction of a second and `wfviz track` never imports Rerun (tests/test_imports.py).
+if TYPE_CHECKING:
+    from wfviz.io.frames import Clip
+    from wfviz.run import RunSummary
 
 def _flags_take_no_value() -> None:
     """Show no value for a flag in ``--help``. Typer's rich help (0.2x) prints a flag's type as if
@@ -103,12 +104,16 @@ NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pix
 
 
 def _fail(message: str, code: int = EXIT_BAD_INPUT) -> None:
+    from wfviz.io.clip import display
+
     err.print(f"[bold red]wfviz: error:[/] {escape(display(message))}", highlight=False, soft_wrap=True)
     raise typer.Exit(code)
 
 
 def _show_warning(message, category, filename, lineno, file=None, line=None) -> None:
     """Print a warning as one line: ``wfviz: note|warning: ...``."""
+    from wfviz.io.clip import ClipNote, ClipWarning, display
+
     if issubclass(category, ClipNote):
         kind = "note"
     elif issubclass(category, ClipWarning):
@@ -133,6 +138,9 @@ def _guarded(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        from wfviz.io.clip import BadFrameError, ClipError, ClipWarning
+        from wfviz.io.outputs import OutputError
+
         with warnings.catch_warnings():
             warnings.simplefilter("always", ClipWarning)
             warnings.showwarning = _show_warning
@@ -188,6 +196,9 @@ def _guard_outputs(*outputs: Path | None, clip: Clip | None = None,
                    inputs: tuple[tuple[Path | None, str], ...] = ()) -> None:
     """Refuse outputs that would replace an input (clip frames, truth, config, recording) or
     each other; remove temporary outputs that killed wfviz runs left beside them."""
+    from wfviz.io.clip import display
+    from wfviz.io.outputs import check_not_inputs, remove_stale
+
     files, folders = _clip_inputs(clip)
     check_not_inputs(outputs, [*files, *((p, what) for p, what in inputs if p is not None)], folders)
     for folder in dict.fromkeys(Path(o).parent for o in outputs if o is not None):
@@ -213,6 +224,9 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
              inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None,
              backfill: bool = False) -> RunSummary:
+    from wfviz.io.clip import display
+    from wfviz.run import run
+
     if explain is not None and truth is None:
         raise ValueError(f"--explain {explain}: needs truth (--truth FILE)")
     _guard_outputs(recording, tracks, *_explain_files(explain), clip=clip, inputs=inputs)
@@ -264,6 +278,8 @@ def _read_truth(path: Path | None):
 
 
 def _report(summary: RunSummary, tracks: Path | None, recording: Path | None, explain: Path | None = None) -> None:
+    from wfviz.io.clip import display
+
     signum = summary.signal or (signal.SIGINT if summary.interrupted else None)
     state = f"[yellow]interrupted by {signal.Signals(signum).name}[/]" if signum else "done"
     out.print(f"{state}: {summary.frames} frames in {summary.seconds:.2f} s "
@@ -335,6 +351,8 @@ def record(
     backfill: BackfillOpt = False,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
+    from wfviz.io.clip import open_clip
+
     live = _live(spawn, connect, serve, bind, port)
     trk = _tracker(tracker, config)
     truth_points = _read_truth(truth)
@@ -366,6 +384,8 @@ def track(
     backfill: BackfillOpt = False,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
+    from wfviz.io.clip import open_clip
+
     if tracks is None and truth is None:
         raise ValueError("track: nothing to write: give --tracks FILE (or --truth FILE to score the run)")
     trk = _tracker(tracker, config)
@@ -397,6 +417,7 @@ def demo(
     port: PortOpt = 9876,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
+    from wfviz.io.outputs import check_writable, replace_into, temp_path
     from wfviz.synth.demo import demo_clip
     from wfviz.synth.folder import check_folder
 
@@ -474,6 +495,7 @@ def eval_(
     import json
 
     from wfviz.evaluate import evaluate, format_backfilled, format_table, has_backfilled_rows
+    from wfviz.io.outputs import check_writable
 
     if explain is None and (tracks is None or truth is None):
         raise ValueError("eval: give TRACKS and TRUTH (or --explain EXPLAIN.csv)")
@@ -526,6 +548,7 @@ def screenshot(
     height: Annotated[int, typer.Option("--height", min=200, help="Image height in pixels (of each panel with --frames).")] = 1000,
 ) -> None:
     """Render a recording in the real Rerun viewer, headless, with its default blueprint: one frame, or several side by side, the camera views optionally zoomed around a point, a truth target or a track."""
+    from wfviz.io.outputs import OutputError
     from wfviz.record.screenshot import ScreenshotError, pick_timeline, plan_shots, render_shots
 
     if not recording.is_file():
@@ -558,6 +581,7 @@ def bench_(
     import cv2
 
     from wfviz.bench import bench, format_bench
+    from wfviz.io.clip import open_clip
 
     if threads > 0:
         cv2.setNumThreads(threads)
@@ -596,6 +620,7 @@ def tune(
 ) -> None:
     """Search a tracker's parameters against ground truth (Optuna), validate on held-back clips, link every trial to its scores and recordings."""
     from wfviz.config import load_config
+    from wfviz.io.outputs import OutputError
     from wfviz.trackers import default_space
     from wfviz.tune.outputs import ranked
     from wfviz.tune.space import load_space, parse_space, space_to_toml
@@ -737,6 +762,8 @@ def compare(
     nan_as_zero: NanOpt = False,
 ) -> None:
     """Several trackers or configurations on one clip, in one recording on one timeline, with the frames where they disagree marked and, with truth, where each run's Pd went."""
+    from wfviz.io.clip import open_clip
+
     from wfviz.compare import check_fit, check_labels, format_summary, parse_run, study_runs
     from wfviz.compare.session import compare as run_compare
 

@@ -51,6 +51,8 @@ SUPPORTED = (f"a video ({' '.join(VIDEO_SUFFIXES)}), a folder of images "
 #: Clip sources named by a prefix (``synth:`` for the built-in scenarios), registered by the
 #: packages that provide them (:func:`register_source`): ``prefix -> opener(spec, fps)``.
 SOURCES: dict[str, Callable[[str, float | None], Clip]] = {}
+#: Built-in prefixes and the module that registers each, imported when a spec first uses it.
+PROVIDERS = {"synth:": "wfviz.synth.scenarios"}
 
 LumaMode = Literal["auto", "raw", "expand", "bgr"]
 #: Codec pixel-format tags (``CAP_PROP_CODEC_PIXEL_FORMAT``) whose first plane is 8-bit luma.
@@ -105,6 +107,11 @@ def open_clip(path: str | Path, fps: float | None = None, *, skip_bad_frames: bo
     raising. ``nan_as_zero``: NaN/inf pixels of float frames become 0 (warned once) instead
     of raising.
     """
+    for prefix, module in PROVIDERS.items():
+        if prefix not in SOURCES and str(path).startswith(prefix):
+            import importlib
+
+            importlib.import_module(module)
     for prefix, opener in SOURCES.items():
         if str(path).startswith(prefix):
             return opener(str(path), fps)

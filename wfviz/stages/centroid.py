@@ -13,8 +13,6 @@ from collections.abc import Callable
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import least_squares
-from scipy.special import erf
 
 N_REGIONS = 8
 
@@ -237,6 +235,8 @@ class GaussianFit:
 
 def _pixel_profile(n: int, centre: float, sigma: float) -> tuple[np.ndarray, np.ndarray, np.ndarray]:
     """Fraction F_i of a unit 1-D Gaussian in pixels 0..n-1 and dF_i/dcentre, dF_i/dsigma."""
+    from scipy.special import erf  # (the Gaussian fit only: SciPy is imported on first use)
+
     u = (np.arange(n + 1, dtype=np.float64) - 0.5 - centre) / (_SQRT2 * sigma)
     e = np.exp(-u * u)
     f = 0.5 * np.diff(erf(u))
@@ -298,6 +298,8 @@ def gaussian_fit(window: np.ndarray, mask: np.ndarray | None = None,
     hi = np.array([np.inf, w - 0.5, h - 0.5, s_max, np.inf])
     x0 = np.clip(np.array([a0, start[0], start[1], s0, b0]), lo + 1e-6, hi - 1e-6)
     idx = np.flatnonzero(sel.ravel())
+
+    from scipy.optimize import least_squares  # (imported on first use: not the default centroid)
 
     def fun(p: np.ndarray) -> np.ndarray:
         return gaussian_model((h, w), p)[0].ravel()[idx] - data.ravel()[idx]

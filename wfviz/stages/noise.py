@@ -26,7 +26,6 @@ from dataclasses import dataclass
 
 import cv2
 import numpy as np
-from scipy import ndimage
 
 _MAD = 1.4826  # MAD -> sigma for Gaussian data
 _Q99 = 2.3263  # 99th percentile of a unit Gaussian
@@ -133,6 +132,8 @@ def fill_missing(grid: np.ndarray, default: float) -> np.ndarray:
         return grid
     if bad.all():
         return np.full_like(grid, default)
+    from scipy import ndimage  # (imported when first needed)
+
     idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
     return grid[tuple(idx)]
 

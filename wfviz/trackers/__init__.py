@@ -4,19 +4,13 @@
 
 from __future__ import annotations
 
+import importlib
 from pathlib import Path
-from typing import Any, NamedTuple
+from typing import TYPE_CHECKING, Any, NamedTuple
 
-from wfviz.config import load_config
-from wfviz.trackers.base import FrameResult, Tracker
-from wfviz.trackers.fusion import FusionTracker
-from wfviz.trackers.fusion.config import SEARCH_SPACE as FUSION_SPACE, FusionConfig
-from wfviz.trackers.gewc import GEWCTracker
-from wfviz.trackers.gewc.config import SEARCH_SPACE as GEWC_SPACE, GEWCConfig
-from wfviz.trackers.starfield import StarfieldTracker
-from wfviz.trackers.starfield.config import SEARCH_SPACE as STARFIELD_SPACE, StarfieldConfig
-from wfviz.trackers.tbd import TBDTracker
-from wfviz.trackers.tbd.config import SEARCH_SPACE as TBD_SPACE, TBDConfig
+if TYPE_CHECKING:  # imported on use: `wfviz --help` and a tracker's start need none of the others
+    from wfviz.trackers.base import FrameResult, Tracker
+
 
 class TrackerEntry(NamedTuple):
     """One registered tracker: its class, its config class, its recorder adapter
@@ -29,12 +23,53 @@ class TrackerEntry(NamedTuple):
     space: dict | None = None
 
 
-TRACKERS: dict[str, TrackerEntry] = {
-    "gewc": TrackerEntry(GEWCTracker, GEWCConfig, "wfviz.record.gewc:GEWCRecorder", GEWC_SPACE),
-    "fusion": TrackerEntry(FusionTracker, FusionConfig, "wfviz.record.fusion:FusionRecorder", FUSION_SPACE),
-    "starfield": TrackerEntry(StarfieldTracker, StarfieldConfig, "wfviz.record.starfield:StarfieldRecorder", STARFIELD_SPACE),
-    "tbd": TrackerEntry(TBDTracker, TBDConfig, "wfviz.record.tbd:TBDRecorder", TBD_SPACE),
-}
+def _load(package: str, tracker: str, config: str, recorder: str) -> TrackerEntry:
+    """The entry of the tracker in ``wfviz.trackers.<package>`` (imported now)."""
+    mod = importlib.import_module(f"wfviz.trackers.{package}")
+    conf = importlib.import_module(f"wfviz.trackers.{package}.config")
+    return TrackerEntry(getattr(mod, tracker), getattr(conf, config), recorder, getattr(conf, "SEARCH_SPACE", None))
+
+
+class _Registry(dict):
+    """Tracker name -> :class:`TrackerEntry`. A value may be a zero-argument loader, called (and
+    replaced by its entry) the first time the name is looked up, so listing the names imports no
+    tracker (``wfviz --help`` starts without numpy, OpenCV or SciPy)."""
+
+    def __getitem__(self, name: str) -> TrackerEntry:
+        value = super().__getitem__(name)
+        if callable(value) and not isinstance(value, tuple):
+            value = value()
+            super().__setitem__(name, value)
+        return value
+
+    def get(self, name: str, default: Any = None) -> Any:
+        return self[name] if name in self else default
+
+    def values(self) -> Any:  # type: ignore[override]
+        return [self[k] for k in self]
+
+    def items(self) -> Any:  # type: ignore[override]
+        return [(k, self[k]) for k in self]
+
+
+TRACKERS: dict[str, TrackerEntry] = _Registry({
+    "gewc": lambda: _load("gewc", "GEWCTracker", "GEWCConfig", "wfviz.record.gewc:GEWCRecorder"),
+    "fusion": lambda: _load("fusion", "FusionTracker", "FusionConfig", "wfviz.record.fusion:FusionRecorder"),
+    "starfield": lambda: _load("starfield", "StarfieldTracker", "StarfieldConfig",
+                               "wfviz.record.starfield:StarfieldRecorder"),
+    "tbd": lambda: _load("tbd", "TBDTracker", "TBDConfig", "wfviz.record.tbd:TBDRecorder"),
+})
+
+_CLASSES = {"GEWCTracker": "gewc", "FusionTracker": "fusion", "StarfieldTracker": "starfield", "TBDTracker": "tbd"}
+
+
+def __getattr__(name: str) -> Any:
+    """The tracker classes and ``FrameResult``/``Tracker``, imported on first use."""
+    if name in _CLASSES:
+        return TRACKERS[_CLASSES[name]].tracker
+    if name in ("FrameResult", "Tracker"):
+        return getattr(importlib.import_module("wfviz.trackers.base"), name)
+    raise AttributeError(f"module 'wfviz.trackers' has no attribute '{name}'")
 
 
 def _entry(name: str) -> TrackerEntry:
@@ -62,6 +97,8 @@ def make_tracker(name: str, config: Any | None = None) -> Tracker:
 
 def load_tracker(name: str, config_file: str | Path | None) -> Tracker:
     """Tracker ``name`` configured from a TOML file (defaults when None)."""
+    from wfviz.config import load_config
+
     return make_tracker(name, load_config(config_file, config_class(name)))
 
 
