@@ -100,6 +100,7 @@ GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance
 ExplainOpt = Annotated[Optional[Path], typer.Option("--explain", help="With --truth: write the cause of every truth point in every frame to this CSV (frame,target_id,cause,detail,significance,det_dist,track_id) and of every false confirmed track point to <stem>-false.csv beside it, and print where Pd went (docs/debugging.md).", show_default=False)]
 BackfillOpt = Annotated[bool, typer.Option("--backfill", help="Report every confirmed track from its first frame: its tentative rows are rewritten as confirmed in the tracks CSV (column backfilled = 1) when the run is complete; for offline analysis (a live system cannot know it yet). With --truth, Pd is printed both ways.")]
 SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
+ThreadsOpt = Annotated[Optional[int], typer.Option("--threads", min=1, max=64, help="Threads of the run's pipeline: decoding, the stages before detection, tracking and the outputs each in their own (1: all in one; default: this machine's cores, at most 4). The outputs are the same whatever the count.", show_default=False)]
 NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pixels of float frames by 0 instead of stopping.")]
 
 
@@ -223,8 +224,9 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
              stop: int | None, image_every: int, source: str, truth=None, gate: float = 3.0,
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
              inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None,
-             backfill: bool = False) -> RunSummary:
+             backfill: bool = False, threads: int | None = None) -> RunSummary:
     from wfviz.io.clip import display
+    from wfviz.pipeline import default_threads
     from wfviz.run import run
 
     if explain is not None and truth is None:
@@ -254,7 +256,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
 
         summary = run(clip, tracker, tracks_csv=tracks, recording=recording, recorder_options=options,
                       start=start, stop=stop, truth=truth, gate=gate, explain=explain, on_frame=tick,
-                      backfill=backfill)
+                      backfill=backfill, threads=threads or default_threads())
     return summary
 
 
@@ -349,6 +351,7 @@ def record(
     bind: BindOpt = "127.0.0.1",
     port: PortOpt = 9876,
     backfill: BackfillOpt = False,
+    threads: ThreadsOpt = None,
 ) -> None:
     """Track a clip and record every stage to a Rerun .rrd (default recordings/<stem>-<tracker>.rrd)."""
     from wfviz.io.clip import open_clip
@@ -362,7 +365,8 @@ def record(
     summary = _execute(source, trk, tracks=tracks, recording=output, start=start, stop=stop,
                        image_every=0 if no_images else image_every, source=str(clip),
                        truth=truth_points, gate=gate, jpeg_quality=jpeg_quality, exact_every=exact_every,
-                       inputs=_inputs(truth, config), live=live, explain=explain, backfill=backfill)
+                       inputs=_inputs(truth, config), live=live, explain=explain, backfill=backfill,
+                       threads=threads)
     _report(summary, tracks, output, explain)
 
 
@@ -382,6 +386,7 @@ def track(
     skip_bad_frames: Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, counted in the closing summary) instead of stopping.")] = False,
     nan_as_zero: NanOpt = False,
     backfill: BackfillOpt = False,
+    threads: ThreadsOpt = None,
 ) -> None:
     """Track a clip and write the tracks CSV only (no recording)."""
     from wfviz.io.clip import open_clip
@@ -393,7 +398,7 @@ def track(
     source = open_clip(clip, fps=fps, skip_bad_frames=skip_bad_frames, nan_as_zero=nan_as_zero)
     summary = _execute(source, trk, tracks=tracks, recording=None, start=start, stop=stop,
                        image_every=0, source=str(clip), truth=truth_points, gate=gate, inputs=_inputs(truth, config),
-                       explain=explain, backfill=backfill)
+                       explain=explain, backfill=backfill, threads=threads)
     _report(summary, tracks, None, explain)
 
 
@@ -415,6 +420,7 @@ def demo(
     serve: ServeOpt = False,
     bind: BindOpt = "127.0.0.1",
     port: PortOpt = 9876,
+    threads: ThreadsOpt = None,
 ) -> None:
     """Generate the built-in synthetic 180° fisheye clip, track it and record every stage."""
     from wfviz.io.outputs import check_writable, replace_into, temp_path
@@ -443,7 +449,7 @@ def demo(
     summary = _execute(clip, trk, tracks=tracks, recording=output, start=0, stop=None,
                        image_every=0 if no_images else image_every,
                        source=f"built-in demo (seed {seed}, {frames} frames)", truth=clip.truth_points(),
-                       jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
+                       jpeg_quality=jpeg_quality, exact_every=exact_every, live=live, threads=threads)
     out.print(f"  truth:     {truth}", highlight=False, markup=False)
     _report(summary, tracks, output)
 

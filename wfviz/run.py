@@ -20,6 +20,7 @@ from wfviz.evaluate import EvalResult, Points
 from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip, Frame, read_ahead
 from wfviz.io.outputs import check_writable
+from wfviz.pipeline import SinkThread, deliver, prepare_ahead, restore
 from wfviz.record_options import RecorderOptions
 from wfviz.sinks import CallbackSink, Facts, RecordingSink, RunEnd, ScoreSink, Sink, Step, TracksSink
 from wfviz.trackers.base import FrameResult, Tracker
@@ -103,7 +104,7 @@ class SingleRun:
 
 
 def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0, stop: int | None = None,
-          ahead: bool = True, signals: StopSignals | None = None) -> RunSummary:
+          ahead: bool = True, signals: StopSignals | None = None, threads: int = 1) -> RunSummary:
     """The one loop: frames ``start <= index < stop`` of ``clip`` through ``stepper`` (one
     tracker: :class:`SingleRun`), each :class:`~wfviz.sinks.Step` published by every sink, then
     to every sink; at the end every sink concludes, then finishes (or, on an error, every sink
@@ -115,6 +116,9 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
     frame; the sinks then finish with the frames done. ``signals``: an active :class:`StopSignals`
     of the caller (a signal that arrived while it opened the sinks stops the run before its first
     frame). No frame in the range: ValueError. The summary's ``confirmed`` are the (first) run's.
+    ``threads`` ≥ 2: a pipeline of threads (:mod:`wfviz.pipeline`): frames decoded ahead, a
+    single tracker's stages before detection run ahead of it where they do not depend on its
+    tracks, and the sinks in their own thread; the same outputs. 1: ``ahead`` only.
     """
     source = str(clip.path) if clip.path is not None else clip.name
     try:
@@ -126,7 +130,12 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
     tracker_ms = 0.0
     with (nullcontext(signals) if signals is not None else StopSignals()) as signals:
         t_start = time.perf_counter()
-        stream = read_ahead(clip.frames(start, stop)) if ahead else _generator(clip.frames(start, stop))
+        piped = threads > 1
+        stream = read_ahead(clip.frames(start, stop)) if ahead or piped else _generator(clip.frames(start, stop))
+        early = prepare_ahead(stepper.tracker) if piped and isinstance(stepper, SingleRun) else None
+        if early is not None:
+            stream = early.feed(stream)
+        out = SinkThread(sinks) if piped else None
         try:
             while True:
                 t0 = time.perf_counter()
@@ -141,19 +150,27 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
                 frames += 1  # counted before the sinks: one that raises KeyboardInterrupt had it
                 first = frame.index if first is None else first
                 last = frame.index
-                for sink in sinks:
-                    sink.publish(step)
-                for sink in sinks:
-                    sink.step(step)
+                if out is not None:
+                    out.send(step)
+                else:
+                    deliver(sinks, step)
                 if signals.signum is not None:
                     break
+            if out is not None:
+                out.drain()
         except KeyboardInterrupt:  # not installed (other thread) or raised by a sink
             signals.signum = signals.signum or signal.SIGINT
+            if out is not None:
+                _drain_after_stop(out, sinks)
         except BaseException:
+            if out is not None:
+                _drain_after_stop(out, sinks, error=True)
             _abort(sinks)
             raise
         finally:
             stream.close()
+            if early is not None:
+                restore(stepper.tracker, early)
         if frames == 0 and signals.signum is None:
             _abort(sinks)
             raise ValueError(f"{source}: no frames in the selected range (start={start}, stop={stop})")
@@ -187,7 +204,8 @@ def open_sinks(openers: Sequence[Callable[[], Sink]]) -> list[Sink]:
 def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recording: Path | None = None,
         recorder_options: RecorderOptions | None = None, start: int = 0, stop: int | None = None,
         truth: tuple[Points, Points] | None = None, gate: float = 3.0, explain: Path | None = None,
-        on_frame: Callable[[Frame, FrameResult], None] | None = None, backfill: bool = False) -> RunSummary:
+        on_frame: Callable[[Frame, FrameResult], None] | None = None, backfill: bool = False,
+        threads: int = 1) -> RunSummary:
     """Track ``clip`` frames ``start <= index < stop`` with the usual sinks (what ``wfviz
     record``, ``track`` and ``demo`` run): the tracks CSV, the recording, scores against
     ``truth`` (visible, hidden points from :func:`wfviz.evaluate.read_truth`, or a synthetic
@@ -197,7 +215,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     :class:`~wfviz.explain.report.ExplainSummary`); without truth nothing is computed.
     ``backfill``: the tracks CSV reports every confirmed track from its first frame
     (:class:`~wfviz.sinks.TracksWriter`), and with truth the facts hold those scores too
-    (:class:`~wfviz.sinks.BackfilledScores`).
+    (:class:`~wfviz.sinks.BackfilledScores`). ``threads``: see :func:`drive` (the same outputs).
 
     Outputs are written to unique temporary files beside them
     (:func:`wfviz.io.outputs.temp_path`) and renamed when the run ends; on a signal the frames
@@ -226,7 +244,7 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
         openers.append(lambda: CallbackSink(on_frame))
     with StopSignals() as signals:  # a signal while the outputs open: they are kept, empty
         sinks = open_sinks(openers)
-        summary = drive(clip, stepper, sinks, start=start, stop=stop, signals=signals)
+        summary = drive(clip, stepper, sinks, start=start, stop=stop, signals=signals, threads=threads)
     return replace(summary, scores=summary.facts.get(EvalResult)) if truth is not None else summary
 
 
@@ -238,6 +256,16 @@ def _generator(frames: Iterator[Frame]) -> Generator[Frame, None, None]:
         close = getattr(frames, "close", None)  # an Iterator need not be a generator
         if close is not None:
             close()
+
+
+def _drain_after_stop(out: SinkThread, sinks: Sequence[Sink], error: bool = False) -> None:
+    """The sink thread ended: the steps queued before a stop are delivered (``error``: dropped,
+    the run is failing); a second error there is not raised over the first."""
+    try:
+        out.drain()
+    except BaseException:  # the first stop or error is the one reported
+        if not error:
+            raise
 
 
 def _abort(sinks: Sequence[Sink]) -> None:

@@ -98,7 +98,7 @@ def min_side(suppression: SuppressionConfig | None = None, horizon: HorizonConfi
 
 class StageTimer:
     """Milliseconds per stage, the one timer of every tracker: :meth:`lap` adds the time since
-    the previous lap to ``stage`` (stages may repeat), :meth:`skip` leaves time uncounted,
+    the previous lap to ``stage`` (stages may repeat; or a time measured in another thread), :meth:`skip` leaves time uncounted,
     :meth:`inner` times a stage nested in the current lap (and leaves it out of that lap);
     :meth:`done` adds ``total`` since creation and returns the dict."""
 
@@ -106,9 +106,11 @@ class StageTimer:
         self.timings: dict[str, float] = dict.fromkeys(stages, 0.0)
         self._start = self._t0 = time.perf_counter()
 
-    def lap(self, stage: str) -> None:
+    def lap(self, stage: str, ms: float | None = None) -> None:
+        """``ms``: the stage ran elsewhere (another thread: :class:`wfviz.pipeline.PrepareAhead`)
+        and took that long; it is added, and the time since the previous lap is not counted."""
         t1 = time.perf_counter()
-        self.timings[stage] = self.timings.get(stage, 0.0) + (t1 - self._t0) * 1e3
+        self.timings[stage] = self.timings.get(stage, 0.0) + ((t1 - self._t0) * 1e3 if ms is None else ms)
         self._t0 = t1
 
     def skip(self) -> None:
