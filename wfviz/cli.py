@@ -1,4 +1,4 @@
-"""Command line: ``wfviz record | track | demo | tune | compare | eval | config`` and more. Wiring only; no stage work here."""
+"""Command line: ``wfviz record | track | demo | tune | run | compare | eval | config`` and more. Wiring only; no stage work here."""
 
 from __future__ import annotations
 
@@ -746,6 +746,94 @@ def _tune_summary(result, metric: str) -> None:
         out.print(f"  recordings: {len(recs)} in {recs[0].parent}{cut}", highlight=False, markup=False)
 
 
+@app.command("run")
+@_guarded
+def run_dataset(
+    dataset: Annotated[Path, typer.Argument(help="A folder searched for clips (folders of 2+ images, videos, .npy stacks; truth.csv in or beside each is its truth), a list file (.txt/.list: a CLIP or CLIP=TRUTH a line, # comments, paths relative to the list) or one clip.", show_default=False)],
+    out_dir: Annotated[Optional[Path], typer.Option("--out", help="The run's folder: results.csv (a row per clip), summary.md, tracks/, explain/, recordings/ (the same command resumes it). \\[required]", show_default=False)] = None,
+    tracker: TrackerOpt = "gewc",
+    config: ConfigOpt = None,
+    jobs: Annotated[Optional[int], typer.Option("--jobs", min=1, help="Clips tracked at a time (local processes, or Ray tasks with --ray). Default: this machine's cores.", show_default=False)] = None,
+    ray: Annotated[Optional[str], typer.Option("--ray", help="Run the clips on a Ray cluster at this address (`--ray` alone: a local Ray). Needs Ray: pip install \"wfviz\\[ray]\".", show_default=False)] = None,
+    gate: GateOpt = 3.0,
+    goal: Annotated[str, typer.Option("--goal", help="What a clip should meet (the summary's goals met, results.csv's goal column): METRIC OP NUMBER joined by and/or; METRIC one of pd, pd_settled, fa_per_frame, mota, idf1, hota, id_switches.")] = "pd>=0.9 and fa_per_frame<=0.1",
+    record: Annotated[bool, typer.Option("--record", help="Record every clip (recordings/<label>.rrd, with truth, as `wfviz record --truth`).")] = False,
+    record_failing: Annotated[Optional[str], typer.Option("--record-failing", metavar="EXPR", help="Record the clips whose scores meet EXPR, e.g. \"pd<0.9 or fa_per_frame>0.1\" (tracked again with the recording once scored).", show_default=False)] = None,
+) -> None:
+    """Track every clip of a folder or a list file (with truth: score and explain it) in local processes or on Ray; one row per clip in results.csv, a summary, resumable."""
+    from wfviz.config import load_config
+    from wfviz.dataset.goals import parse_goal
+    from wfviz.dataset.results import format_totals, running
+    from wfviz.dataset.session import RunSettings, execute, plan
+    from wfviz.pools import require_ray, worker_count
+
+    if out_dir is None:
+        raise ValueError("--out DIR is required (the run's folder)")
+    if tracker not in TRACKERS:
+        raise ValueError(f"unknown tracker '{tracker}' (available: {', '.join(TRACKERS)})")
+    goal_ = parse_goal(goal, "--goal")
+    failing = parse_goal(record_failing) if record_failing is not None else None
+    if record and failing is not None:
+        raise ValueError("--record and --record-failing: choose one (--record records every clip)")
+    use_ray = ray is not None
+    if use_ray:
+        require_ray()
+    settings = RunSettings(dataset, out_dir, tracker, load_config(config, config_class(tracker)), gate=gate,
+                           goal=goal_, record=record, record_if=failing)
+    todo = plan(settings)
+    n_workers, note = worker_count(jobs, len(todo.todo), use_ray, flag="--jobs", items_are="the clips to run")
+    if note and todo.todo:
+        err.print(f"wfviz: note: {note}", highlight=False, markup=False, soft_wrap=True)
+    if todo.changed:
+        err.print(f"wfviz: note: {todo.changed} clips done with another tracker, configuration or gate are run again",
+                  highlight=False, markup=False, soft_wrap=True)
+    if todo.dropped:
+        err.print(f"wfviz: note: {todo.dropped} rows of clips no longer in {display(dataset)} dropped from results.csv",
+                  highlight=False, markup=False, soft_wrap=True)
+    kept = len(todo.kept)
+    if kept:
+        err.print(f"wfviz: note: {kept} of {len(todo.clips)} clips already done (results.csv): skipped",
+                  highlight=False, markup=False, soft_wrap=True)
+    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+                  TextColumn("{task.fields[summary]}"), TimeRemainingColumn(),
+                  console=err, transient=True, disable=not err.is_terminal) as progress:
+        task = progress.add_task("clips", total=len(todo.clips), completed=kept, summary="")
+        count = [kept]
+
+        def on_row(row, totals) -> None:
+            count[0] += 1
+            progress.update(task, completed=count[0], summary=escape(running(totals, goal_)))
+            for n in row.notes:
+                progress.console.print(f"wfviz: note: {display(row.label)}: {display(n)}", highlight=False,
+                                       markup=False, soft_wrap=True)
+            if not err.is_terminal or not row.ok:
+                s = row.scores
+                what = (f"Pd {s['pd']:.3f}, FA/frame {s['fa_per_frame']:.3f}" if row.scored and "pd" in s
+                        else row.status if not row.ok else "tracked (no truth)")
+                progress.console.print(f"wfviz: [{count[0]}/{len(todo.clips)}] {display(row.label)}: {display(what)} "
+                                       f"({row.frames} frames, {row.seconds:.1f} s)", highlight=False,
+                                       markup=False, soft_wrap=True)
+
+        result = execute(settings, workers=n_workers, use_ray=use_ray,
+                         ray_address=None if ray in (None, "", "local") else ray, on_row=on_row)
+    how = (f"[yellow]interrupted by {signal.Signals(result.signal).name}[/]" if result.signal is not None
+           else "done")
+    out.print(f"{how}: {result.ran} clips run, {len(todo.clips) - len(result.rows)} not run"
+              if result.signal is not None else f"{how}: {len(result.rows)} clips", highlight=False)
+    out.print(format_totals(result.totals, goal_, result.wall, result.ran), highlight=False, markup=False)
+    failed = [r for r in result.rows if not r.ok]
+    for r in failed[:10]:
+        out.print(f"  failed: {r.label}: {r.status.removeprefix('failed: ')}", highlight=False, markup=False)
+    recs = [r for r in result.rows if r.recording]
+    if recs:
+        out.print(f"  recordings: {len(recs)} in {out_dir / 'recordings'}", highlight=False, markup=False)
+    for f in result.files:
+        out.print(f"  {f.name:<12} {f}", highlight=False, markup=False)
+    if result.signal is not None:
+        out.print("  the same command resumes the run", highlight=False, markup=False)
+        raise typer.Exit(128 + result.signal)
+
+
 @app.command()
 @_guarded
 def compare(
@@ -832,7 +920,7 @@ def show_config(tracker: TrackerOpt = "gewc") -> None:
 
 
 def _ray_flag(argv: list[str]) -> list[str]:
-    """``wfviz tune ... --ray`` without an address: a local Ray (the option takes a value)."""
+    """``wfviz tune|run ... --ray`` without an address: a local Ray (the option takes a value)."""
     import re
 
     out = list(argv)
@@ -847,7 +935,7 @@ def _ray_flag(argv: list[str]) -> list[str]:
 
 def main() -> None:
     """Console-script entry point."""
-    if "tune" in sys.argv[1:3] and "--ray" in sys.argv:
+    if ("tune" in sys.argv[1:3] or "run" in sys.argv[1:3]) and "--ray" in sys.argv:
         sys.argv[:] = _ray_flag(sys.argv)
     app()
 
