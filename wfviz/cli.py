@@ -765,6 +765,7 @@ def run_dataset(
     from wfviz.dataset.goals import parse_goal
     from wfviz.dataset.results import format_totals, running
     from wfviz.dataset.session import RunSettings, execute, plan
+    from wfviz.io.clip import display
     from wfviz.pools import require_ray, worker_count
 
     if out_dir is None:
