@@ -3,7 +3,13 @@
 (:class:`PrepareAhead`), the tracker on the calling thread, and the sinks (tracks CSV, recording,
 scores) behind it (:class:`SinkThread`). NumPy and OpenCV release the GIL in their loops, so the
 threads share the cores. Every thread does the same work in the same order as a run on one
-thread, so the outputs are identical (tests/test_pipeline.py); only the times differ."""
+thread, so the outputs are identical (tests/test_pipeline.py); only the times differ.
+
+Measured (docs/performance.md): on the 2-vCPU machine of the benchmarks two independent
+CPU-bound processes run 1.48x as fast as one (the vCPUs share a physical core), and this
+pipeline runs ``track`` and ``record`` 1.3-1.4x as fast on both as on one. The front end in a
+child process instead of a thread (no shared GIL) was tried and ran slower: the prepared frames
+(3-8 MB each) cost more to send than the GIL did."""
 
 from __future__ import annotations
 
