@@ -55,7 +55,7 @@ from doc_blocks import machine, write_block
 from step_timing import time_steps
 
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
-SECTIONS = ("trackers", "record", "decode", "peers")
+SECTIONS = ("trackers", "record", "startup", "cores", "decode", "peers")
 PACKAGES = ("numpy", "opencv-python-headless", "scipy", "rerun-sdk")  # versions in the table heads
 # tracker -> (clip, budget ms per frame from the performance issue)
 TRACKER_CASES = {
@@ -170,7 +170,7 @@ def record_section(runs: int) -> str:
                 rows.append(f"| {bits} | {label} | {ms:.2f} | +{ms - base:.2f} | {ms_m:.2f} | "
                             f"**+{ms_m - base_m:.2f}** | {mb:.3f} |")
                 print(rows[-1], flush=True)
-    rows += ["", *whole_processes(runs, clip16)]
+    rows += ["", *whole_processes(runs, demo_clip(0, n_frames=600))]
     return "\n".join(rows)
 
 
@@ -216,6 +216,93 @@ def whole_processes(runs: int, clip: MemoryClip) -> list[str]:
                         f"| {label} | {sec:.2f} | {ms:.2f} | {over} | |")
             print(rows[-1], flush=True)
     return rows
+
+
+# -- start-up ----------------------------------------------------------------------------------
+def _wfviz() -> list[str]:
+    """The `wfviz` console script beside this interpreter (what a user runs), else ``-m wfviz``."""
+    script = Path(sys.executable).with_name("wfviz")
+    return [str(script)] if script.exists() else [sys.executable, "-m", "wfviz"]
+
+
+def _timed(args: list[str], runs: int, cpus: str, cwd: Path) -> float:
+    """Median wall seconds of the command ``args`` as a whole process on ``cpus`` (taskset)."""
+    import subprocess
+
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        subprocess.run(["taskset", "-c", cpus, *args], check=True, capture_output=True, cwd=cwd,
+                       env={**os.environ, "OMP_NUM_THREADS": "1"})
+        times.append(time.perf_counter() - t0)
+    return float(np.median(times))
+
+
+def startup_section(runs: int) -> str:
+    """Whole-process times of the commands a user starts most, on one core: what they import
+    before the first frame (`wfviz track` imports no Rerun, pandas, Optuna or matplotlib)."""
+    cpu = str(sorted(os.sched_getaffinity(0))[0])
+    exe = _wfviz()
+    rows = [f"### Start-up (whole processes, `taskset -c {cpu}`, median of {runs + 2})", "",
+            "| command | seconds |", "|---|---:|"]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        rng = np.random.default_rng(0)
+        np.save(tmp / "two.npy", (1000 + rng.normal(0, 10, (2, 512, 640))).astype(np.uint16))
+        cases = [("`python -c pass` (the interpreter alone)", [sys.executable, "-c", "pass"]),
+                 ("`python -c 'import numpy, cv2'`", [sys.executable, "-c", "import numpy, cv2"]),
+                 ("`wfviz --help`", [*exe, "--help"]),
+                 ("`wfviz track` on a 2-frame 640x512 clip (start-up and 2 frames)",
+                  [*exe, "track", "two.npy", "--tracks", "t.csv"]),
+                 ("`wfviz record` on the same clip", [*exe, "record", "two.npy", "-o", "r.rrd"])]
+        for label, args in cases:
+            sec = _timed(args, runs + 2, cpu, tmp)
+            rows.append(f"| {label} | {sec:.2f} |")
+            print(rows[-1], flush=True)
+    return "\n".join(rows)
+
+
+# -- one core against two ---------------------------------------------------------------------
+_BUSY = ("import time, numpy as np, cv2; cv2.setNumThreads(1); "
+         "a = np.random.default_rng(0).random((512, 640), dtype=np.float32); t0 = time.perf_counter()\n"
+         "for _ in range(300): b = cv2.GaussianBlur(a, (0, 0), 2.0); c = np.sort(b[::4], axis=1)\n"
+         "print(time.perf_counter() - t0)")
+
+
+def cores_section(runs: int, n_frames: int = 600) -> str:
+    """`wfviz track` and `wfviz record` end to end (16-bit PNG decoding included) on one core and
+    on two, default ``--threads``; and what two cores give two independent CPU-bound processes
+    on this machine (the ceiling for any parallel run here)."""
+    import subprocess
+
+    cpus = sorted(os.sched_getaffinity(0) | set(range(os.cpu_count() or 1)))
+    if len(cpus) < 2:
+        return "### One core against two\n\n(this machine has one core)"
+    one, two = str(cpus[-1]), f"{cpus[0]},{cpus[1]}"
+    clip = demo_clip(0, n_frames=n_frames)
+    rows = [f"### One core against two (the demo clip, {n_frames} frames of 640x512 as a 16-bit PNG folder, "
+            f"whole processes, median of {runs})", "",
+            "| command | one core: s (ms/frame) | two cores: s (ms/frame) | two over one |", "|---|---:|---:|---:|"]
+    with tempfile.TemporaryDirectory() as d:
+        tmp = Path(d)
+        folder = clip.save(tmp / "png16")
+        exe = _wfviz()
+        for label, args in (("`wfviz track`", [*exe, "track", str(folder), "--tracks", "t.csv"]),
+                            ("`wfviz record`", [*exe, "record", str(folder), "-o", "r.rrd"])):
+            a = _timed(args, runs, one, tmp)
+            b = _timed(args, runs, two, tmp)
+            rows.append(f"| {label} | {a:.2f} ({a * 1e3 / n_frames:.1f}) | {b:.2f} ({b * 1e3 / n_frames:.1f}) | "
+                        f"**{a / b:.2f}x** |")
+            print(rows[-1], flush=True)
+        alone = float(subprocess.run(["taskset", "-c", one, sys.executable, "-c", _BUSY], check=True,
+                                     capture_output=True, text=True).stdout)
+        pair = [subprocess.Popen(["taskset", "-c", two, sys.executable, "-c", _BUSY], stdout=subprocess.PIPE,
+                                 text=True) for _ in range(2)]
+        both = max(float(p.communicate()[0]) for p in pair)
+        rows.append(f"| two independent CPU-bound processes (NumPy and OpenCV work) | {2 * alone:.2f} (in turn) | "
+                    f"{both:.2f} (at once) | {2 * alone / both:.2f}x |")
+        print(rows[-1], flush=True)
+    return "\n".join(rows)
 
 
 # -- decoding ---------------------------------------------------------------------------------
@@ -398,6 +485,7 @@ def main() -> int:
             f"`python benchmarks/performance.py --runs {args.runs}`.")
     print(head, flush=True)
     blocks = {"trackers": lambda: trackers_section(args.runs), "record": lambda: record_section(args.runs),
+              "startup": lambda: startup_section(args.runs), "cores": lambda: cores_section(args.runs),
               "decode": lambda: decode_section(args.runs),
               "peers": lambda: peers_section(args.runs, args.peer_frames)}
     for name in args.only:

@@ -47,7 +47,8 @@ class NoiseEstimate:
 
     def significance(self, residual: np.ndarray) -> np.ndarray:
         """(residual - level) / sigma, float32."""
-        return (residual.astype(np.float32, copy=False) - self.level) / self.sigma
+        z = np.subtract(residual, self.level, dtype=np.float32)
+        return np.divide(z, self.sigma, out=z)
 
     def at(self, xy: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
         """(level, sigma) at the pixels nearest the points ``xy`` (N, 2) = (x, y)."""
@@ -223,7 +224,8 @@ class NoiseModel:
                 level = np.where(z, lv_full, level)
                 sigma = np.where(z, sg_full, sigma)
         lv0, sg0 = grids[0]
-        return NoiseEstimate(level, np.maximum(sigma, floor), lv0, sg0, self.tile, q)
+        # (sigma is this call's own array: upsampled or selected above)
+        return NoiseEstimate(level, np.maximum(sigma, floor, out=sigma), lv0, sg0, self.tile, q)
 
 
 SHARE = 0.75  # TailCalibration: a tail as heavy as that of this share of the tiles holds everywhere
