@@ -85,8 +85,7 @@ def tile_statistics(residual: np.ndarray, valid: np.ndarray, tile: int, quantum:
     side = tile // step
     padded = np.full((ny * side, nx * side), np.inf, dtype=np.float32)
     padded[:sub_r.shape[0], :sub_r.shape[1]] = np.where(sub_v, sub_r.astype(np.float32, copy=False), np.inf)
-    t = padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3)
-    t = t.reshape(ny * nx, -1)
+    t = padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3).reshape(ny * nx, -1)
     n = np.isfinite(t).sum(axis=1)
     rows = np.arange(t.shape[0])
     mid = np.maximum((n - 1) // 2, 0)
