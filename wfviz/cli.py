@@ -15,9 +15,7 @@ from typer.core import TyperGroup
 from typer.exceptions import TyperException
 from rich.console import Console
 from rich.markup import escape
-from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
 
-from wfviz.config import ConfigError, config_to_toml
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY, RecorderOptions
 from wfviz.trackers import TRACKERS, config_class, load_tracker
 
@@ -139,6 +137,7 @@ def _guarded(fn):
 
     @functools.wraps(fn)
     def wrapper(*args, **kwargs):
+        from wfviz.config import ConfigError
         from wfviz.io.clip import BadFrameError, ClipError, ClipWarning
         from wfviz.io.outputs import OutputError
 
@@ -225,6 +224,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
              jpeg_quality: int = PREVIEW_QUALITY, exact_every: int = EXACT_EVERY,
              inputs: tuple[tuple[Path | None, str], ...] = (), live=None, explain: Path | None = None,
              backfill: bool = False, threads: int | None = None) -> RunSummary:
+    from wfviz.config import config_to_toml
     from wfviz.io.clip import display
     from wfviz.pipeline import default_threads
     from wfviz.run import run
@@ -242,6 +242,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
                                   jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
         if live is not None:
             err.print(f"wfviz: live: {live.describe()}", highlight=False, markup=False, soft_wrap=True)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -478,6 +479,7 @@ def synth(
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
     check_folder(out_dir, "the scenario")  # before rendering anything: a user's folder is refused
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn  # (imported when a command shows progress)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(escape(f"synth {scenario}"), total=clip.n_frames)
@@ -679,6 +681,7 @@ def tune(
                        use_ray=use_ray, ray_address=address, cache=not no_cache, constraints=constraints,
                        prune=prune)
     metric = OBJECTIVES[objective][0][0]
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[best]}"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -795,6 +798,7 @@ def run_dataset(
     if kept:
         err.print(f"wfviz: note: {kept} of {len(todo.clips)} clips already done (results.csv): skipped",
                   highlight=False, markup=False, soft_wrap=True)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
                   TextColumn("{task.fields[summary]}"), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
@@ -887,6 +891,7 @@ def compare(
     total = source.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
     with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
                   console=err, transient=True, disable=not err.is_terminal) as progress:
         task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
@@ -917,6 +922,8 @@ def show_config(tracker: TrackerOpt = "gewc") -> None:
     """Print the default configuration as TOML (edit it and pass it with --config)."""
     if tracker not in TRACKERS:
         _fail(f"unknown tracker '{tracker}' (available: {', '.join(TRACKERS)})")
+    from wfviz.config import config_to_toml
+
     sys.stdout.write(config_to_toml(config_class(tracker)()))
 
 
