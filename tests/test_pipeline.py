@@ -106,3 +106,5 @@ def test_stage_times_come_from_the_front_end_thread(tmp_path: Path) -> None:
     run(clip, make_tracker("gewc"), threads=2, on_frame=lambda f, r: times.append(r.timings))
     assert len(times) == 12
     assert all(t["camera"] > 0 and t["suppress"] > 0 and t["detect"] > 0 for t in times[1:])
+    # the total is the frame's whole work, the stages timed in the front end's thread included
+    assert all(t["total"] >= sum(v for k, v in t.items() if k != "total") - 1e-6 for t in times)

@@ -47,6 +47,8 @@ class PrepareAhead:
         self.stages = stages
         self._ready: deque[tuple[Any, Any, list[tuple[str, float]]]] = deque()
         self._circle = None
+        #: ms the stages took (in their thread) on the last frame handed out
+        self.last_ms = 0.0
 
     @property
     def circle(self) -> Any:
@@ -87,6 +89,7 @@ class PrepareAhead:
             raise RuntimeError("PrepareAhead: frames must be stepped in the order they were fed, searched whole")
         _, p, laps = self._ready.popleft()
         self._circle = p.circle
+        self.last_ms = sum(ms for _, ms in laps)
         for stage, ms in laps:
             lap(stage, ms)
         return p

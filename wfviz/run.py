@@ -144,7 +144,11 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
                 if frame is None or signals.signum is not None:  # a signal while reading: no new frame
                     break
                 results, run_ms = stepper.advance(frame)
-                step = Step(frame, results, (t1 - t0) * 1e3, (time.perf_counter() - t1) * 1e3, run_ms)
+                work = (time.perf_counter() - t1) * 1e3
+                if early is not None:  # the stages before detection ran in their own thread
+                    work += early.last_ms
+                    run_ms = tuple(ms + early.last_ms for ms in run_ms)
+                step = Step(frame, results, (t1 - t0) * 1e3, work, run_ms)
                 tracker_ms += step.step_ms
                 confirmed |= results[0].confirmed_ids
                 frames += 1  # counted before the sinks: one that raises KeyboardInterrupt had it

@@ -79,13 +79,16 @@ def tile_statistics(residual: np.ndarray, valid: np.ndarray, tile: int, quantum:
     Gaussian's (2.326). Tiles with fewer than :data:`MIN_SAMPLES` valid samples get NaN."""
     h, w = residual.shape
     ny, nx = -(-h // tile), -(-w // tile)
-    if tile % step:
-        raise ValueError(f"tile_statistics: the tile ({tile}) must be a multiple of the step ({step})")
-    sub_r, sub_v = residual[::step, ::step], valid[::step, ::step]  # only the samples are looked at
-    side = tile // step
-    padded = np.full((ny * side, nx * side), np.inf, dtype=np.float32)
-    padded[:sub_r.shape[0], :sub_r.shape[1]] = np.where(sub_v, sub_r.astype(np.float32, copy=False), np.inf)
-    t = padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3).reshape(ny * nx, -1)
+    if tile % step == 0:  # the samples are every step-th row and column of the frame: take them first
+        sub_r, sub_v = residual[::step, ::step], valid[::step, ::step]
+        side = tile // step
+        padded = np.full((ny * side, nx * side), np.inf, dtype=np.float32)
+        padded[:sub_r.shape[0], :sub_r.shape[1]] = np.where(sub_v, sub_r.astype(np.float32, copy=False), np.inf)
+        t = padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3).reshape(ny * nx, -1)
+    else:  # every step-th row and column of each tile
+        padded = np.full((ny * tile, nx * tile), np.inf, dtype=np.float32)
+        padded[:h, :w] = np.where(valid, residual.astype(np.float32, copy=False), np.inf)
+        t = padded.reshape(ny, tile, nx, tile)[:, ::step, :, ::step].transpose(0, 2, 1, 3).reshape(ny * nx, -1)
     n = np.isfinite(t).sum(axis=1)
     rows = np.arange(t.shape[0])
     mid = np.maximum((n - 1) // 2, 0)

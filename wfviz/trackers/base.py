@@ -100,17 +100,20 @@ class StageTimer:
     """Milliseconds per stage, the one timer of every tracker: :meth:`lap` adds the time since
     the previous lap to ``stage`` (stages may repeat; or a time measured in another thread), :meth:`skip` leaves time uncounted,
     :meth:`inner` times a stage nested in the current lap (and leaves it out of that lap);
-    :meth:`done` adds ``total`` since creation and returns the dict."""
+    :meth:`done` adds ``total`` (since creation, plus stages timed elsewhere) and returns the dict."""
 
     def __init__(self, stages: tuple[str, ...] = ()) -> None:
         self.timings: dict[str, float] = dict.fromkeys(stages, 0.0)
         self._start = self._t0 = time.perf_counter()
+        self._elsewhere = 0.0  # ms of stages timed in another thread
 
     def lap(self, stage: str, ms: float | None = None) -> None:
         """``ms``: the stage ran elsewhere (another thread: :class:`wfviz.pipeline.PrepareAhead`)
         and took that long; it is added, and the time since the previous lap is not counted."""
         t1 = time.perf_counter()
         self.timings[stage] = self.timings.get(stage, 0.0) + ((t1 - self._t0) * 1e3 if ms is None else ms)
+        if ms is not None:
+            self._elsewhere += ms
         self._t0 = t1
 
     def skip(self) -> None:
@@ -129,5 +132,7 @@ class StageTimer:
             self._t0 += dt
 
     def done(self) -> dict[str, float]:
-        self.timings["total"] = (time.perf_counter() - self._start) * 1e3
+        """The timings, with ``total``: the time since creation plus the stages timed in another
+        thread (the frame's whole work, however many threads shared it)."""
+        self.timings["total"] = (time.perf_counter() - self._start) * 1e3 + self._elsewhere
         return self.timings
