@@ -70,25 +70,34 @@ def data_quantum(image: np.ndarray) -> float:
     return float(np.gcd.reduce(np.diff(values).astype(np.int64)))
 
 
-def tile_statistics(residual: np.ndarray, valid: np.ndarray, tile: int, quantum: float = 0.0,
-                    clip: float = 3.5, step: int = 2
-                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
-    """(level, sigma, tail, samples) grids of ``residual`` over ``tile`` × ``tile`` tiles, from
-    the ``valid`` pixels on a grid of every ``step``-th row and column (see the module docstring).
-    ``tail``: the tile's 99th percentile in units of ``sigma`` above ``level``, divided by a
-    Gaussian's (2.326). Tiles with fewer than :data:`MIN_SAMPLES` valid samples get NaN."""
+def tile_samples(residual: np.ndarray, valid: np.ndarray, tile: int, step: int = 2) -> np.ndarray:
+    """The samples of each ``tile`` × ``tile`` tile, a row per tile (row-major tiles): the pixels
+    on every ``step``-th row and column of the tile, float32, inf where not ``valid`` or beyond
+    the frame."""
     h, w = residual.shape
     ny, nx = -(-h // tile), -(-w // tile)
-    if tile % step == 0:  # the samples are every step-th row and column of the frame: take them first
+    if tile % step == 0:  # those are every step-th row and column of the frame: take them first
         sub_r, sub_v = residual[::step, ::step], valid[::step, ::step]
         side = tile // step
         padded = np.full((ny * side, nx * side), np.inf, dtype=np.float32)
         padded[:sub_r.shape[0], :sub_r.shape[1]] = np.where(sub_v, sub_r.astype(np.float32, copy=False), np.inf)
-        t = padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3).reshape(ny * nx, -1)
-    else:  # every step-th row and column of each tile
-        padded = np.full((ny * tile, nx * tile), np.inf, dtype=np.float32)
-        padded[:h, :w] = np.where(valid, residual.astype(np.float32, copy=False), np.inf)
-        t = padded.reshape(ny, tile, nx, tile)[:, ::step, :, ::step].transpose(0, 2, 1, 3).reshape(ny * nx, -1)
+        return padded.reshape(ny, side, nx, side).transpose(0, 2, 1, 3).reshape(ny * nx, -1)
+    padded = np.full((ny * tile, nx * tile), np.inf, dtype=np.float32)
+    padded[:h, :w] = np.where(valid, residual.astype(np.float32, copy=False), np.inf)
+    return padded.reshape(ny, tile, nx, tile)[:, ::step, :, ::step].transpose(0, 2, 1, 3).reshape(ny * nx, -1)
+
+
+def tile_statistics(residual: np.ndarray, valid: np.ndarray, tile: int, quantum: float = 0.0,
+                    clip: float = 3.5, step: int = 2
+                    ) -> tuple[np.ndarray, np.ndarray, np.ndarray, np.ndarray]:
+    """(level, sigma, tail, samples) grids of ``residual`` over ``tile`` × ``tile`` tiles, from
+    the ``valid`` pixels on a grid of every ``step``-th row and column (:func:`tile_samples`;
+    see the module docstring). ``tail``: the tile's 99th percentile in units of ``sigma`` above
+    ``level``, divided by a Gaussian's (2.326). Tiles with fewer than :data:`MIN_SAMPLES` valid
+    samples get NaN."""
+    h, w = residual.shape
+    ny, nx = -(-h // tile), -(-w // tile)
+    t = tile_samples(residual, valid, tile, step)
     n = np.isfinite(t).sum(axis=1)
     rows = np.arange(t.shape[0])
     mid = np.maximum((n - 1) // 2, 0)
