@@ -143,11 +143,12 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
                 t1 = time.perf_counter()
                 if frame is None or signals.signum is not None:  # a signal while reading: no new frame
                     break
+                c1 = time.thread_time()
                 results, run_ms = stepper.advance(frame)
                 work = (time.perf_counter() - t1) * 1e3
-                if early is not None:  # the stages before detection ran in their own thread
-                    work += early.last_ms
-                    run_ms = tuple(ms + early.last_ms for ms in run_ms)
+                if early is not None:  # threads share the GIL: the work is this thread's CPU time
+                    work = (time.thread_time() - c1) * 1e3 + early.last_ms  # and the front end's
+                    run_ms = (work,)
                 step = Step(frame, results, (t1 - t0) * 1e3, work, run_ms)
                 tracker_ms += step.step_ms
                 confirmed |= results[0].confirmed_ids
