@@ -6,10 +6,10 @@ threads share the cores. Every thread does the same work in the same order as a 
 thread, so the outputs are identical (tests/test_pipeline.py); only the times differ.
 
 Measured (docs/performance.md): on the 2-vCPU machine of the benchmarks two independent
-CPU-bound processes run 1.48x as fast as one (the vCPUs share a physical core), and this
-pipeline runs ``track`` and ``record`` 1.3-1.4x as fast on both as on one. The front end in a
-child process instead of a thread (no shared GIL) was tried and ran slower: the prepared frames
-(3-8 MB each) cost more to send than the GIL did."""
+CPU-bound processes run 1.5-1.8x as fast at once as in turn, and ``track`` and ``record`` run
+1.1-1.3x as fast on both as on one: the tracker's and the recorder's Python share the GIL. The
+front end in a child process instead of a thread (no shared GIL) was tried and ran slower: the
+prepared frames (3-8 MB each) cost more to send than the GIL did."""
 
 from __future__ import annotations
 
