@@ -98,7 +98,7 @@ GateOpt = Annotated[float, typer.Option("--gate", min=0.01, help="Match distance
 ExplainOpt = Annotated[Optional[Path], typer.Option("--explain", help="With --truth: write the cause of every truth point in every frame to this CSV (frame,target_id,cause,detail,significance,det_dist,track_id) and of every false confirmed track point to <stem>-false.csv beside it, and print where Pd went (docs/debugging.md).", show_default=False)]
 BackfillOpt = Annotated[bool, typer.Option("--backfill", help="Report every confirmed track from its first frame: its tentative rows are rewritten as confirmed in the tracks CSV (column backfilled = 1) when the run is complete; for offline analysis (a live system cannot know it yet). With --truth, Pd is printed both ways.")]
 SkipBadOpt = Annotated[bool, typer.Option("--skip-bad-frames", help="Skip undecodable images or video frames (warned, logged in the recording) instead of stopping.")]
-ThreadsOpt = Annotated[Optional[int], typer.Option("--threads", min=1, max=64, help="Threads of the run's pipeline: decoding, the stages before detection, tracking and the outputs each in their own (1: all in one; default: this machine's cores, at most 4). The outputs are the same whatever the count.", show_default=False)]
+ThreadsOpt = Annotated[Optional[int], typer.Option("--threads", min=1, max=64, help="Threads of the run's pipeline: decoding, the stages before detection, tracking and the outputs each in their own (1: decoding ahead, the rest in one; default: this machine's cores, at most 4). The outputs are the same whatever the count.", show_default=False)]
 NanOpt = Annotated[bool, typer.Option("--nan-as-zero", help="Replace NaN/inf pixels of float frames by 0 instead of stopping.")]
 
 
