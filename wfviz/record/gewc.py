@@ -43,7 +43,9 @@ class GEWCRecorder(Recorder):
         self.log_front_end(result, images)
         if images:
             self.image("suppressed/image", result.front.suppressed)
-            if result.clutter_map is not None:  # one value per cell, drawn over the frame's pixels
+            # a slow map: on exact frames, as the noise map (on image frames with previews only)
+            due = self.images.exact if self.images.exact_every else images
+            if result.clutter_map is not None and due:  # one value per cell, drawn over the frame's pixels
                 h, w = result.front.suppressed.shape[:2]
                 cell = result.clutter_map.cell
                 prior = result.clutter_map.prior((h, w), result.front.offset).astype(np.float32)
