@@ -173,6 +173,17 @@ def _guarded(fn):
     return wrapper
 
 
+def _progress(*fields: str, eta: bool = True):
+    """A progress bar on stderr, hidden when stderr is not a terminal: the task's description, a
+    bar, done/total, the task ``fields`` (rich format strings) and, with ``eta``, the time left.
+    rich.progress is imported here, by the commands that show one."""
+    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn
+
+    columns = [TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
+               *(TextColumn(f) for f in fields), *([TimeRemainingColumn()] if eta else [])]
+    return Progress(*columns, console=err, transient=True, disable=not err.is_terminal)
+
+
 def _tracker(name: str, config: Path | None):
     return load_tracker(name, config)
 
@@ -242,10 +253,7 @@ def _execute(clip: Clip, tracker, *, tracks: Path | None, recording: Path | None
                                   jpeg_quality=jpeg_quality, exact_every=exact_every, live=live)
         if live is not None:
             err.print(f"wfviz: live: {live.describe()}", highlight=False, markup=False, soft_wrap=True)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[fps]:>7.1f} fps"), TimeRemainingColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with _progress("{task.fields[fps]:>7.1f} fps") as progress:
         task = progress.add_task(escape(display(clip.name)), total=total, fps=0.0)
         count = [0]
         import time
@@ -479,9 +487,7 @@ def synth(
         raise ValueError("synth: give an output folder (wfviz synth SCENARIO OUT_DIR)")
     check_folder(out_dir, "the scenario")  # before rendering anything: a user's folder is refused
     clip = make_scenario(scenario, seed=seed, n_frames=frames, snr=snr)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn  # (imported when a command shows progress)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with _progress(eta=False) as progress:
         task = progress.add_task(escape(f"synth {scenario}"), total=clip.n_frames)
         path = write_scenario(clip, out_dir, avi=avi, progress=lambda n: progress.update(task, completed=n))
     out.print(f"wrote {clip.n_frames} frames of '{scenario}' (seed {seed}) to {path}", highlight=False, markup=False)
@@ -681,10 +687,7 @@ def tune(
                        use_ray=use_ray, ray_address=address, cache=not no_cache, constraints=constraints,
                        prune=prune)
     metric = OBJECTIVES[objective][0][0]
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[best]}"), TimeRemainingColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with _progress("{task.fields[best]}") as progress:
         task = progress.add_task("trials", total=trials, best="")
 
         def on_batch(state) -> None:
@@ -798,10 +801,7 @@ def run_dataset(
     if kept:
         err.print(f"wfviz: note: {kept} of {len(todo.clips)} clips already done (results.csv): skipped",
                   highlight=False, markup=False, soft_wrap=True)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(),
-                  TextColumn("{task.fields[summary]}"), TimeRemainingColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with _progress("{task.fields[summary]}") as progress:
         task = progress.add_task("clips", total=len(todo.clips), completed=kept, summary="")
         count = [kept]
 
@@ -891,9 +891,7 @@ def compare(
     total = source.n_frames
     if total is not None:
         total = max(0, min(total, stop if stop is not None else total) - start)
-    from rich.progress import BarColumn, MofNCompleteColumn, Progress, TextColumn, TimeRemainingColumn  # (imported when a command shows progress)
-    with Progress(TextColumn("[bold]{task.description}"), BarColumn(), MofNCompleteColumn(), TimeRemainingColumn(),
-                  console=err, transient=True, disable=not err.is_terminal) as progress:
+    with _progress() as progress:
         task = progress.add_task(escape(f"{source.name}: {len(runs)} runs"), total=total)
         options = RecorderOptions(source=str(clip), image_every=0 if no_images else image_every,
                                   exact_every=exact_every, jpeg_quality=jpeg_quality)

@@ -153,8 +153,11 @@ class SinkThread:
         self._raise()
         self._items.put(step)
 
-    def drain(self) -> None:
-        """Wait until every queued step is delivered; raise a sink's error."""
+    def drain(self, deliver: bool = True) -> None:
+        """Wait until every queued step is delivered (``deliver`` False: dropped, the run is
+        failing); raise a sink's error."""
+        if not deliver:
+            self._failed = True
         if self._thread.is_alive():
             self._items.put(None)
             self._thread.join()

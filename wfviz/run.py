@@ -166,10 +166,10 @@ def drive(clip: Clip, stepper: Stepper, sinks: Sequence[Sink], *, start: int = 0
         except KeyboardInterrupt:  # not installed (other thread) or raised by a sink
             signals.signum = signals.signum or signal.SIGINT
             if out is not None:
-                _drain_after_stop(out, sinks)
+                _drain_after_stop(out)
         except BaseException:
             if out is not None:
-                _drain_after_stop(out, sinks, error=True)
+                _drain_after_stop(out, error=True)
             _abort(sinks)
             raise
         finally:
@@ -263,11 +263,11 @@ def _generator(frames: Iterator[Frame]) -> Generator[Frame, None, None]:
             close()
 
 
-def _drain_after_stop(out: SinkThread, sinks: Sequence[Sink], error: bool = False) -> None:
+def _drain_after_stop(out: SinkThread, error: bool = False) -> None:
     """The sink thread ended: the steps queued before a stop are delivered (``error``: dropped,
-    the run is failing); a second error there is not raised over the first."""
+    the run is failing, and a second error there is not raised over the first)."""
     try:
-        out.drain()
+        out.drain(deliver=not error)
     except BaseException:  # the first stop or error is the one reported
         if not error:
             raise
