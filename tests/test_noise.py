@@ -100,3 +100,27 @@ def test_tile_samples_equal_the_whole_frame_formula(tile: int, shape: tuple[int,
     padded[:h, :w] = np.where(valid, residual, np.inf)
     want = padded.reshape(ny, tile, nx, tile)[:, ::2, :, ::2].transpose(0, 2, 1, 3).reshape(ny * nx, -1)
     np.testing.assert_array_equal(tile_samples(residual, valid, tile), want)
+
+
+def test_nearest_tiles_equal_scipy_feature_transform_ties_included() -> None:
+    """``nearest_tiles`` (the gap filling of the tile grids) returns SciPy's exact Euclidean
+    feature transform, whose ties decide which tile a masked one copies."""
+    from scipy import ndimage
+
+    from wfviz.stages.noise import fill_missing, nearest_tiles
+
+    rng = np.random.default_rng(3)
+    checked = 0
+    for _ in range(400):
+        h, w = rng.integers(1, 30, 2)
+        bad = rng.random((h, w)) < rng.random() ** 0.3
+        if bad.all() or not bad.any():
+            continue
+        want = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
+        rows, cols = nearest_tiles(bad)
+        assert np.array_equal(rows, want[0]) and np.array_equal(cols, want[1]), (h, w)
+        checked += 1
+    assert checked > 300
+    grid = np.array([[np.nan, 2.0, np.nan], [np.nan, np.nan, np.nan], [5.0, np.nan, np.nan]])
+    assert fill_missing(grid, 0.0).tolist() == [[2.0, 2.0, 2.0], [5.0, 2.0, 2.0], [5.0, 5.0, 5.0]]
+    assert fill_missing(np.full((2, 2), np.nan), 7.0).tolist() == [[7.0, 7.0], [7.0, 7.0]]

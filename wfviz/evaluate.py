@@ -23,7 +23,6 @@ from pathlib import Path
 from typing import Any, Sequence
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 from wfviz.hota import hota, point_similarity
 
@@ -283,6 +282,8 @@ def _assign(a: Sequence[Point], b: Sequence[Point], gate: float,
     rule (:func:`_allowed`: within ``gate``, or inside a's box from ``sizes``): (i, j, d)."""
     if not a or not b:
         return []
+    from scipy.optimize import linear_sum_assignment  # (scoring only: SciPy stays off `track`'s start-up)
+
     d = _dist(a, b)
     ok = _allowed(a, b, d, gate, sizes)
     rows, cols = linear_sum_assignment(np.where(ok, d, 1e9))

@@ -19,7 +19,6 @@ from collections.abc import Sequence
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
 #: the localisation thresholds α (TrackEval's ``np.arange(0.05, 0.99, 0.05)``: 19 values)
 ALPHAS = np.arange(0.05, 0.99, 0.05)
@@ -48,6 +47,8 @@ def hota(frames: Sequence[Frame]) -> Hota:
     """HOTA, DetA and AssA of a sequence given as its frames (:data:`Frame`: truth ids, track
     ids and their similarity matrix; ids unique within a frame, frames without points may be
     left out)."""
+    from scipy.optimize import linear_sum_assignment  # (scoring only: SciPy stays off `track`'s start-up)
+
     sims = [np.asarray(s, dtype=np.float64).reshape(len(g), len(t)) for g, t, s in frames]
     g_inv, n_truth = _dense([g for g, _, _ in frames])
     t_inv, n_track = _dense([t for _, t, _ in frames])

@@ -35,7 +35,6 @@ import math
 from collections import deque
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from wfviz.config import ClutterConfig
 
@@ -64,6 +63,8 @@ class StaticClutter:
         labels = np.zeros(n)
         if n:
             if c.neighbourhood > 0:
+                from scipy.spatial import cKDTree  # (not the default: SciPy stays off the start-up)
+
                 others = cKDTree(xy).query_ball_point(xy, c.neighbourhood, return_length=True) - 1
                 crowded = others >= c.min_neighbours
             else:  # the whole frame

@@ -23,6 +23,7 @@ checks the order of magnitude.
 from __future__ import annotations
 
 from dataclasses import dataclass
+from functools import lru_cache
 
 import cv2
 import numpy as np
@@ -148,10 +149,41 @@ def fill_missing(grid: np.ndarray, default: float) -> np.ndarray:
         return grid
     if bad.all():
         return np.full_like(grid, default)
-    from scipy import ndimage  # (imported when first needed)
+    return grid[_nearest_tiles_cached(bad.shape, np.packbits(bad).tobytes())]
 
-    idx = ndimage.distance_transform_edt(bad, return_distances=False, return_indices=True)
-    return grid[tuple(idx)]
+
+@lru_cache(maxsize=32)
+def _nearest_tiles_cached(shape: tuple[int, int], packed: bytes) -> tuple[np.ndarray, np.ndarray]:
+    """:func:`nearest_tiles` of a grid given packed: the same tiles are missing frame after frame
+    (those the mask or the horizon cover), so each pattern is solved once (read-only results)."""
+    bad = np.unpackbits(np.frombuffer(packed, dtype=np.uint8), count=shape[0] * shape[1]).reshape(shape)
+    out = nearest_tiles(bad.astype(bool))
+    for a in out:
+        a.flags.writeable = False
+    return out
+
+
+def nearest_tiles(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
+    """(rows, columns) of the nearest tile not ``bad`` (Euclidean) for every tile of the 2-D grid
+    ``bad`` (at least one tile not bad). Separable, as Maurer, Qi and Raghavan (2003, IEEE PAMI
+    25, 265-270) and ``scipy.ndimage.distance_transform_edt``, with its ties: first the nearest
+    good row within each column (the upper on a tie), then within each row the nearest of the
+    columns' candidates (the left on a tie). The tile grid is small (20 x 16 at 640 x 512), so the
+    second step compares every pair of columns; tested against SciPy's."""
+    h, w = bad.shape
+    good = ~bad
+    rows = np.arange(h)
+    far = 4 * (h + w) ** 2  # beyond any distance in the grid
+    # each column: the nearest good row above (at or before) and below (at or after)
+    above = np.maximum.accumulate(np.where(good, rows[:, None], -far), axis=0)
+    below = np.minimum.accumulate(np.where(good, rows[:, None], far)[::-1], axis=0)[::-1]
+    r1 = np.where(rows[:, None] - above <= below - rows[:, None], above, below)
+    # each row: the nearest of the columns' candidates (columns without a good tile left out)
+    cols = np.arange(w)
+    d2 = (r1[:, None, :] - rows[:, None, None]) ** 2 + (cols[None, None, :] - cols[None, :, None]) ** 2
+    d2[:, :, ~good.any(axis=0)] = np.iinfo(d2.dtype).max
+    c2 = np.argmin(d2, axis=2)
+    return r1[rows[:, None], c2], c2
 
 
 def _tile_sums(mask: np.ndarray, tile: int, ny: int, nx: int) -> np.ndarray:

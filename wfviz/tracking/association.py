@@ -9,8 +9,8 @@ from collections.abc import Sequence
 from dataclasses import dataclass, replace
 
 import numpy as np
-from scipy.optimize import linear_sum_assignment
 
+from wfviz.tracking.lsap import linear_sum_assignment
 from wfviz.tracking.tracks import Prediction
 
 

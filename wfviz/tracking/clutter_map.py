@@ -30,7 +30,6 @@ from __future__ import annotations
 from dataclasses import dataclass
 
 import numpy as np
-from scipy.spatial import cKDTree
 
 from wfviz.tracking.confirmation import box3
 
@@ -86,8 +85,8 @@ class ClutterMap:
         last, self._last_scene = self._last_scene, scene
         if not len(scene) or last is None or not len(last):
             return np.zeros(len(scene), dtype=bool)
-        d, _ = cKDTree(last).query(scene, distance_upper_bound=PERSIST_RADIUS)
-        return np.isfinite(d)
+        d2 = ((scene[:, None, :] - last[None, :, :]) ** 2).sum(axis=2)  # N x M: N, M <= max_detections
+        return (d2 < PERSIST_RADIUS ** 2).any(axis=1)
 
     def forget_last(self) -> None:
         """The camera's motion is lost this frame: the next frame's detections cannot be compared

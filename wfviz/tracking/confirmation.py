@@ -33,6 +33,8 @@ from dataclasses import dataclass
 
 import numpy as np
 
+from wfviz import normal
+
 EVIDENCE_CAP = 5.0  # most one hit's significance or change may add to or take from a score (nats)
 
 
@@ -69,10 +71,8 @@ def gate_threshold(half: np.ndarray, p_gate: float, k: float) -> np.ndarray:
     counted as independent, which overstates the chance for the smoothed residual: the rate is
     an upper bound), never above the frame's threshold ``k``. A confirmed track looks this deep
     for its target, which fades in and out of the frame's threshold (not in the papers)."""
-    from scipy.special import ndtri
-
     area = (2.0 * half[:, 0] + 1.0) * (2.0 * half[:, 1] + 1.0)
-    return np.minimum(ndtri(1.0 - p_gate / np.maximum(area, 1.0)), k)
+    return np.minimum(normal.quantile(1.0 - p_gate / np.maximum(area, 1.0)), k)
 
 
 def score_change(hit: np.ndarray, p_detect: float, p_fa: np.ndarray) -> np.ndarray:
@@ -99,14 +99,12 @@ def amplitude_score(z: np.ndarray, k: float | np.ndarray, z_max: float = 1000.0,
     crossed the threshold is Gaussian beyond it, density φ(z) / Q(k). A hit just above a lowered
     threshold is thus evidence for noise, a bright one for a target. Bounded to ±``cap`` per
     hit (real noise tails are heavier than the model's). NaN: 0."""
-    from scipy.special import log_ndtr
-
     z = np.asarray(z, dtype=np.float64)
     k = np.broadcast_to(np.asarray(k, dtype=np.float64), z.shape)
     ok = np.isfinite(z) & (z > 0)
     zz = np.where(ok, np.maximum(z, k), k)
     log_f1 = -np.log(zz) - np.log(np.log(np.maximum(z_max / k, 1.0 + 1e-9)))
-    log_f0 = -0.5 * zz * zz - 0.5 * math.log(2 * math.pi) - log_ndtr(-k)
+    log_f0 = -0.5 * zz * zz - 0.5 * math.log(2 * math.pi) - normal.log_cdf(-k)
     return np.where(ok, np.clip(log_f1 - log_f0, -cap, cap), 0.0)
 
 

@@ -26,6 +26,7 @@ from functools import cached_property
 
 import numpy as np
 
+from wfviz import normal
 from wfviz.tracking.confirmation import EVIDENCE_CAP
 
 WINDOW = 1  #: half size (px) of the window a read takes the largest value of (3 × 3)
@@ -130,12 +131,10 @@ class NullReads:
 
 def _blend(sorted_values: np.ndarray, x: np.ndarray, n: int) -> np.ndarray:
     """Empirical CDF of ``sorted_values`` at ``x`` blended with Φ(x) ** ``n`` (weight :data:`PSEUDO`)."""
-    from scipy.special import ndtr
-
     x = np.asarray(x, dtype=np.float64)
     count = len(sorted_values)
     emp = np.searchsorted(sorted_values, x, side="right") / max(count, 1)
-    return (count * emp + PSEUDO * ndtr(x) ** n) / (count + PSEUDO)
+    return (count * emp + PSEUDO * normal.cdf(x) ** n) / (count + PSEUDO)
 
 
 class ReadNull:
