@@ -1,9 +1,10 @@
 """The standard normal distribution's CDF, its logarithm and its quantile, element-wise.
 
 From Python's ``math.erfc`` of the smaller tail and ``statistics.NormalDist`` (Wichura's AS241),
-with an asymptotic series below -20 as SciPy's ``log_ndtr``, so the far tails keep their precision. For the small
-arrays of the tracking rules (a value per gate or track): importing ``scipy.special`` would cost
-about 0.2 s of every run's start-up. ``tests/test_normal.py`` checks them against SciPy.
+with an asymptotic series below -20 as SciPy's ``log_ndtr``, so the far tails keep their
+precision. For the small arrays of the tracking rules (a value per gate or track; the elements
+go through Python one by one): importing ``scipy.special`` would cost about 0.2 s of every
+run's start-up. ``tests/test_normal.py`` checks them against SciPy.
 """
 
 from __future__ import annotations
