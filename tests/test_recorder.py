@@ -394,3 +394,57 @@ def test_default_blueprint_hides_defects_and_names_views(evidence_rrd: Path) -> 
     text = _rows(evidence_rrd, "/log", "TextLog:text")
     tid = next(int(t.split()[1]) for f in text for t in text[f] if " confirmed after " in t)
     assert {f"GEWC weights, track {tid}", "Test: persistence", "Camera motion", "Truth T1 (σ)"} <= titles, titles
+
+
+def _effective(path: Path, entity: str) -> dict[int, dict[str, object]]:
+    """{frame: {component: value}} of ``entity``, its static components filling what a frame lacks."""
+    static: dict[str, object] = {}
+    rows: dict[int, dict[str, object]] = {}
+    for chunk in RrdReader(path).stream():
+        if chunk.entity_path != entity:
+            continue
+        batch = chunk.to_record_batch()
+        names = [n for n in batch.schema.names if ":" in n]
+        if chunk.is_static:
+            static.update({n: batch.column(n).to_pylist()[-1] for n in names})
+            continue
+        for i, f in enumerate(batch.column("frame").to_pylist()):
+            row = rows.setdefault(f, {})
+            row.update({n: v for n in names if (v := batch.column(n).to_pylist()[i]) is not None})
+    return {f: {**static, **row} for f, row in rows.items()}
+
+
+def test_instance_columns_equal_per_frame_archetypes(tmp_path: Path) -> None:
+    """Overlays held and sent as columns (``ColumnBuffer.instances``, constant components static
+    once) read back frame by frame as the archetypes logged each frame would: positions, labels,
+    strips, hover values, and empty frames that clear the last one's instances."""
+    from wfviz.record.recorder import ColumnBuffer
+
+    rng = np.random.default_rng(4)
+    counts = [3, 0, 5, 1, 0, 0, 7] * 3  # 21 frames: two flushes of 8 and a partial one
+    frames = [(rng.random((n, 2)).astype(np.float32) * 100, [f"p{k}" for k in range(n)],
+               [rng.random((k + 2, 2)).astype(np.float32) for k in range(n)], rng.random(n)) for n in counts]
+    want, got = rr.RecordingStream("want"), rr.RecordingStream("got")
+    want.save(tmp_path / "want.rrd")
+    got.save(tmp_path / "got.rrd")
+    cols = ColumnBuffer(got, instance_frames=8)
+    got.log("points", rr.Points2D.from_fields(colors=(255, 0, 0), draw_order=3.0, show_labels=False), static=True)
+    for f, (xy, labels, strips, value) in enumerate(frames):
+        want.set_time("frame", sequence=f)
+        want.set_time("time", duration=f * 0.05)
+        want.log("points", rr.Points2D(xy, labels=labels, colors=(255, 0, 0), draw_order=3.0, show_labels=False),
+                 *([rr.AnyValues(value=value)] if len(xy) else []))
+        want.log("strips", rr.LineStrips2D(strips, class_ids=np.arange(len(strips), dtype=np.uint16)))
+        cols.instances("points", f, f * 0.05, rr.Points2D, len(xy), positions=xy, labels=labels)
+        if len(xy):
+            cols.instances("points", f, f * 0.05, rr.AnyValues, len(xy), value=value)
+        cols.instances("strips", f, f * 0.05, rr.LineStrips2D, len(strips), strips=strips,
+                       class_ids=np.arange(len(strips), dtype=np.uint16))
+        cols.end_frame()
+    cols.flush()
+    want.disconnect()
+    got.disconnect()
+    for entity in ("/points", "/strips"):
+        a, b = _effective(tmp_path / "want.rrd", entity), _effective(tmp_path / "got.rrd", entity)
+        assert sorted(a) == list(range(len(counts))) and a == b, entity
+    assert _effective(tmp_path / "got.rrd", "/points")[1]["Points2D:positions"] == []  # an empty frame

@@ -224,8 +224,12 @@ class ColumnBuffer:
     scalars, 34 KB for a bar chart), so scalars and lines go every ``frames`` frames and the
     bar charts, held compactly as arrays, every ``bar_frames``."""
 
-    def __init__(self, rec: rr.RecordingStream, frames: int = 1024, bar_frames: int = 4096) -> None:
+    def __init__(self, rec: rr.RecordingStream, frames: int = 1024, bar_frames: int = 4096,
+                 instance_frames: int = 64) -> None:
         self.rec, self.frames, self.bar_frames = rec, frames, bar_frames
+        self.instance_frames = instance_frames
+        self._instances: dict[tuple[str, type, tuple[str, ...]], _InstanceRows] = {}
+        self._instance_pending = 0
         self._scalars: dict[str, tuple[list[int], list[float], list[float]]] = {}
         self._pairs: dict[str, tuple[list[int], list[float], list[float]]] = {}  # two series per entity
         self._texts: dict[str, tuple[list[int], list[float], list[str], list[str]]] = {}
@@ -260,15 +264,40 @@ class ColumnBuffer:
             rows = self._bars[path] = _BarRows(len(values), color)
         rows.add(frame, time, values)
 
+    def instances(self, path: str, frame: int, time: float, archetype: type, n: int,
+                  **components: Any) -> None:
+        """This frame's ``n`` instances of ``archetype`` (``rr.Points2D``, ``rr.Boxes2D``,
+        ``rr.LineStrips2D``, ``rr.AnyValues``) at ``path``: every component one value per
+        instance (an array of ``n`` rows or a list of ``n``). Sent with the other frames held as
+        columns partitioned by frame, which builds each component once for them all instead of
+        an archetype a frame; a frame without instances is an empty row, as an empty batch
+        logged then. Components that never change are the caller's to log once, static."""
+        key = (path, archetype, tuple(components))
+        rows = self._instances.get(key)
+        if rows is None:
+            rows = self._instances[key] = _InstanceRows(archetype)
+        rows.add(frame, time, n, components)
+
     def end_frame(self) -> None:
         """Count a frame; send what is due."""
         self._pending += 1
         self._bar_pending += 1
+        self._instance_pending += 1
+        if self._instance_pending >= self.instance_frames:
+            self.flush_instances()
         if self._pending >= self.frames:
             self.flush(bars=self._bar_pending >= self.bar_frames)
 
+    def flush_instances(self) -> None:
+        """Send the instances held."""
+        for (path, _, _), rows in self._instances.items():
+            self.rec.send_columns(path, indexes=time_columns(rows.frames, rows.times), columns=rows.columns())
+        self._instances.clear()
+        self._instance_pending = 0
+
     def flush(self, bars: bool = True) -> None:
-        """Send the scalars and lines held (and the bar charts, with ``bars``)."""
+        """Send the scalars and lines held (and the bar charts, with ``bars``), and the instances."""
+        self.flush_instances()
         for path, (f, t, v) in self._scalars.items():
             self.rec.send_columns(path, indexes=time_columns(f, t), columns=rr.Scalars.columns(scalars=v))
         for path, (f, t, v) in self._pairs.items():
@@ -287,6 +316,31 @@ class ColumnBuffer:
                                       columns=bar_chart_columns(rows.values[:n], np.tile(rows.color, (n, 1))))
             self._bars.clear()
             self._bar_pending = 0
+
+
+class _InstanceRows:
+    """One entity's pending instances of one archetype: per frame, the number of instances and
+    each component's values."""
+
+    def __init__(self, archetype: type) -> None:
+        self.archetype = archetype
+        self.frames: list[int] = []
+        self.times: list[float] = []
+        self.lengths: list[int] = []
+        self.values: dict[str, list] = {}
+
+    def add(self, frame: int, time: float, n: int, components: dict[str, Any]) -> None:
+        self.frames.append(frame)
+        self.times.append(time)
+        self.lengths.append(n)
+        for name, value in components.items():
+            self.values.setdefault(name, []).append(value)
+
+    def columns(self) -> rr.ComponentColumnList:
+        """The rows as columns of the archetype, partitioned by frame."""
+        merged = {name: np.concatenate(parts) if isinstance(parts[0], np.ndarray) else [x for p in parts for x in p]
+                  for name, parts in self.values.items()}
+        return self.archetype.columns(**merged).partition(self.lengths)
 
 
 class _BarRows:
@@ -391,7 +445,9 @@ class Recorder:
         #: colour of the truth target it matches, :class:`~wfviz.record.colors.TargetPalette`)
         self.color_of: Callable[[int], tuple[int, int, int]] = track_color
         self.frames_logged = 0
-        self.columns = ColumnBuffer(self.rec)
+        # overlays as columns every 64 frames (a live view: every frame)
+        self.columns = ColumnBuffer(self.rec, instance_frames=1 if live is not None else 64)
+        self._static_fields: set[str] = set()  # entities whose constant components were logged
         self._now = (0, 0.0)  # (frame, time) being logged
         self.rec.log("config", rr.TextDocument(
             f"# wfviz {tracker}\n\nSource: `{display(options.source)}`\n\n```toml\n{options.config_text}\n```",
@@ -665,21 +721,32 @@ class Recorder:
         self._motion_lost = not reliable
         self._motion_fallback = fallback
 
+    def instances(self, path: str, archetype: type, n: int, **components: Any) -> None:
+        """This frame's ``n`` instances of ``archetype`` at ``path``, one value per instance in
+        every component (sent as columns: :meth:`ColumnBuffer.instances`)."""
+        self.columns.instances(path, *self._now, archetype, n, **components)
+
+    def static_once(self, path: str, fields: Any) -> None:
+        """``fields`` (an archetype's constant components) at ``path``, static, the first time."""
+        if path not in self._static_fields:
+            self._static_fields.add(path)
+            self.rec.log(path, fields, static=True)
+
     def _log_common(self, result: FrameResult) -> None:
-        rec = self.rec
         d = result.detections
-        points = rr.Points2D(d.xy, radii=np.sqrt(d.area / np.pi) + 1.0, colors=DETECTION_COLOR, class_ids=1,
-                             draw_order=DRAW_DETECTIONS, show_labels=False)
-        if len(d):  # hover values; an empty AnyValues batch only draws a warning
+        n = len(d)
+        self.static_once("camera/detections", rr.Points2D.from_fields(
+            colors=DETECTION_COLOR, class_ids=1, draw_order=DRAW_DETECTIONS, show_labels=False))
+        self.instances("camera/detections", rr.Points2D, n, positions=np.asarray(d.xy, dtype=np.float32).reshape(-1, 2),
+                       radii=(np.sqrt(d.area / np.pi) + 1.0).astype(np.float32))
+        if n:  # hover values; an empty AnyValues batch only draws a warning
             extra = {name: np.asarray(v, dtype=np.float64) for name, v in (
                 ("significance", d.significance), ("change", d.change), ("blobness", d.blobness),
                 ("linearity", d.linearity), ("multiframe", d.multiframe))
                 if v is not None}
-            rec.log("camera/detections", points, rr.AnyValues(
-                area=d.area, peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra))
-        else:
-            rec.log("camera/detections", points)
-        self.scalar("detection/count", len(d))
+            self.instances("camera/detections", rr.AnyValues, n, area=np.asarray(d.area),
+                           peak=d.peak.astype(np.float64), flux=d.flux.astype(np.float64), **extra)
+        self.scalar("detection/count", n)
         self.scalar("detection/threshold", d.threshold if np.isfinite(d.threshold) else np.nan)
         self._ensure_labels([t.track_id for t in result.tracks if t.confirmed])
         self.confirmed_ids |= result.confirmed_ids
@@ -691,12 +758,12 @@ class Recorder:
         labels = prediction_labels(preds, geo[:, :2])
         cids = class_ids(ids)
         # the labels are drawn under the gates (a point's would cover its target), on hover on the points
-        rec.log("camera/predictions", rr.Points2D(
-            geo[:, :2], class_ids=cids, colors=colors, labels=labels,
-            radii=np.where(conf, 1.5, 0.7).astype(np.float32), draw_order=DRAW_TRACKS, show_labels=False))
-        rec.log("camera/gates", rr.Boxes2D(
-            centers=geo[:, :2], half_sizes=geo[:, 2:], class_ids=cids, colors=colors, labels=labels,
-            radii=np.where(conf, 0.5, 0.2).astype(np.float32), show_labels=True))
+        self.static_once("camera/predictions", rr.Points2D.from_fields(draw_order=DRAW_TRACKS, show_labels=False))
+        self.instances("camera/predictions", rr.Points2D, len(preds), positions=geo[:, :2], class_ids=cids,
+                       colors=colors, labels=labels, radii=np.where(conf, 1.5, 0.7).astype(np.float32))
+        self.static_once("camera/gates", rr.Boxes2D.from_fields(show_labels=True))
+        self.instances("camera/gates", rr.Boxes2D, len(preds), centers=geo[:, :2], half_sizes=geo[:, 2:],
+                       class_ids=cids, colors=colors, labels=labels, radii=np.where(conf, 0.5, 0.2).astype(np.float32))
         self._log_trails(result)
         for stage, ms in result.timings.items():
             self.scalar(f"timing/{stage}", ms)
@@ -720,9 +787,9 @@ class Recorder:
                 del self._trails[tid]
         conf = [t.track_id for t in result.tracks if t.confirmed]
         strips = [np.array(self._trails[i], dtype=np.float32) for i in conf]
-        self.rec.log("camera/tracks", rr.LineStrips2D(
-            strips, class_ids=class_ids(conf), labels=[str(i) for i in conf],
-            colors=track_colors(conf, color_of=self.color_of), radii=0.6, show_labels=False))
+        self.static_once("camera/tracks", rr.LineStrips2D.from_fields(radii=0.6, show_labels=False))
+        self.instances("camera/tracks", rr.LineStrips2D, len(conf), strips=strips, class_ids=class_ids(conf),
+                       labels=[str(i) for i in conf], colors=track_colors(conf, color_of=self.color_of))
 
     def _ensure_labels(self, confirmed_ids: list[int]) -> None:
         """Static annotation context: a stable colour and label per confirmed track id."""
