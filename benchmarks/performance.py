@@ -167,8 +167,8 @@ def record_section(runs: int) -> str:
                 r_full, mb = time_run(clip, runs, opts, tmp)
                 r_half, _ = time_run(clip, runs, opts, tmp, stop=half)
                 ms, ms_m = r_full / n, (r_full - r_half) / (n - half)
-                rows.append(f"| {bits} | {label} | {ms:.2f} | +{ms - base:.2f} | {ms_m:.2f} | "
-                            f"**+{ms_m - base_m:.2f}** | {mb:.3f} |")
+                rows.append(f"| {bits} | {label} | {ms:.2f} | {ms - base:+.2f} | {ms_m:.2f} | "
+                            f"**{ms_m - base_m:+.2f}** | {mb:.3f} |")
                 print(rows[-1], flush=True)
     rows += ["", *whole_processes(runs, demo_clip(0, n_frames=600))]
     return "\n".join(rows)
@@ -210,7 +210,7 @@ def whole_processes(runs: int, clip: MemoryClip) -> list[str]:
                     mb = (tmp / "r.rrd").stat().st_size / 1e6 / n
             sec = float(np.median(times))
             ms = sec * 1e3 / n
-            over = "" if base is None else f"+{ms - base:.2f}"  # the first row is `track` itself
+            over = "" if base is None else f"{ms - base:+.2f}"  # the first row is `track` itself
             base = ms if base is None else base
             rows.append(f"| {label} | {sec:.2f} | {ms:.2f} | {over} | {mb:.3f} |" if mb else
                         f"| {label} | {sec:.2f} | {ms:.2f} | {over} | |")
