@@ -110,29 +110,40 @@ def trackers_section(runs: int) -> str:
 
 
 # -- track against record ---------------------------------------------------------------------
-def time_run(clip: MemoryClip, runs: int, record: dict | None, tmp: Path, stop: int | None = None
-             ) -> tuple[float, float]:
-    """(median ms of the whole run over frames [0, stop), .rrd MB per frame) for `track`
-    (``record`` None) or `record` with the given recorder options."""
-    totals, size = [], 0.0
+def time_once(clip: MemoryClip, record: dict | None, tmp: Path, stop: int | None = None) -> tuple[float, float]:
+    """(CPU ms of all threads for one whole run over frames [0, stop), .rrd MB per frame) for
+    `track` (``record`` None) or `record` with the given recorder options."""
     n = clip.n_frames if stop is None else stop
+    tracker = make_tracker("gewc")
+    csv, rrd = tmp / "t.csv", tmp / "r.rrd"
+    options = None
+    if record is not None:
+        options = RecorderOptions(source=clip.name, config_text=config_to_toml(tracker.config), **record)
+    t0 = time.process_time()
+    run(clip, tracker, tracks_csv=csv, recording=rrd if record is not None else None,
+        recorder_options=options, stop=stop)
+    total = (time.process_time() - t0) * 1e3
+    size = 0.0
+    if record is not None:
+        size = rrd.stat().st_size / 1e6 / n
+        rrd.unlink()
+    csv.unlink()
+    return total, size
+
+
+def time_runs(clip: MemoryClip, runs: int, cases: list[dict | None], tmp: Path, stop: int | None = None
+              ) -> list[tuple[float, float]]:
+    """:func:`time_once` of every case (None: `track`), the cases interleaved within each of
+    ``runs`` rounds after one warm-up round (this machine's speed drifts over minutes): the
+    median ms and the .rrd MB per frame of each."""
+    totals: list[list[float]] = [[] for _ in cases]
+    sizes = [0.0] * len(cases)
     for r in range(runs + 1):
-        tracker = make_tracker("gewc")
-        csv, rrd = tmp / f"t{r}.csv", tmp / f"r{r}.rrd"
-        options = None
-        if record is not None:
-            options = RecorderOptions(source=clip.name, config_text=config_to_toml(tracker.config), **record)
-        t0 = time.perf_counter()
-        run(clip, tracker, tracks_csv=csv, recording=rrd if record is not None else None,
-            recorder_options=options, stop=stop)
-        total = (time.perf_counter() - t0) * 1e3
-        if record is not None:
-            size = rrd.stat().st_size / 1e6 / n
-            rrd.unlink()
-        csv.unlink()
-        if r:
-            totals.append(total)
-    return float(np.median(totals)), size
+        for k, case in enumerate(cases):
+            total, sizes[k] = time_once(clip, case, tmp, stop)
+            if r:
+                totals[k].append(total)
+    return [(float(np.median(t)), mb) for t, mb in zip(totals, sizes)]
 
 
 def record_section(runs: int) -> str:
@@ -144,28 +155,29 @@ def record_section(runs: int) -> str:
     half = n // 2
     rows = ["### `track` against `record` (GEWC, demo clip, one core, decoding excluded)", "",
             f"Whole runs through `wfviz.run.run` (what the CLI calls), writer threads and the final "
-            f"flush included; median of {runs} runs. *Per frame*: the run's time over its {n} frames. "
+            f"flush included, in CPU time of all threads (this one core's time, not the wall clock, "
+            f"which another virtual machine's load stretches); the cases interleaved, median of {runs} "
+            f"rounds. *Per frame*: the run's time over its {n} frames. "
             f"*Frames {half}–{n - 1}*: the extra time of a {n}-frame run over a {half}-frame one, per "
             "extra frame, i.e. without the fixed cost of opening and closing the recording (about "
             "0.1 s), which a long clip spreads thin.", "",
             f"| source | command | ms per frame | over `track` | frames {half}–{n - 1}: ms per frame | "
             "over `track` | .rrd MB per frame |",
             "|---|---|---:|---:|---:|---:|---:|"]
+    cases = [("`record` (default: exact images every 10th frame, JPEG previews between)", dict()),
+             ("`record --exact-every 1` (every image exact)", dict(exact_every=1)),
+             ("`record --image-every 10` (exact images every 10th frame only)", dict(image_every=10)),
+             ("`record --no-images`", dict(image_every=0))]
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         for clip in (clip16, clip8):
             bits = "16-bit" if clip is clip16 else "8-bit"
-            t_full, _ = time_run(clip, runs, None, tmp)
-            t_half, _ = time_run(clip, runs, None, tmp, stop=half)
-            base, base_m = t_full / n, (t_full - t_half) / (n - half)
+            options: list[dict | None] = [None, *(o for _, o in cases)]
+            full = time_runs(clip, runs, options, tmp)
+            part = time_runs(clip, runs, options, tmp, stop=half)
+            base, base_m = full[0][0] / n, (full[0][0] - part[0][0]) / (n - half)
             rows.append(f"| {bits} | `track` | {base:.2f} | | {base_m:.2f} | | |")
-            cases = [("`record` (default: exact images every 10th frame, JPEG previews between)", dict()),
-                     ("`record --exact-every 1` (every image exact)", dict(exact_every=1)),
-                     ("`record --image-every 10` (exact images every 10th frame only)", dict(image_every=10)),
-                     ("`record --no-images`", dict(image_every=0))]
-            for label, opts in cases:
-                r_full, mb = time_run(clip, runs, opts, tmp)
-                r_half, _ = time_run(clip, runs, opts, tmp, stop=half)
+            for (label, _), (r_full, mb), (r_half, _) in zip(cases, full[1:], part[1:]):
                 ms, ms_m = r_full / n, (r_full - r_half) / (n - half)
                 rows.append(f"| {bits} | {label} | {ms:.2f} | {ms - base:+.2f} | {ms_m:.2f} | "
                             f"**{ms_m - base_m:+.2f}** | {mb:.3f} |")
@@ -176,44 +188,55 @@ def record_section(runs: int) -> str:
 
 def whole_processes(runs: int, clip: MemoryClip) -> list[str]:
     """`wfviz track` and `wfviz record` as whole processes on this one core (start-up, imports,
-    PNG decoding and writing included) on the clip saved as a 16-bit PNG folder."""
+    PNG decoding and writing included) on the clip saved as a 16-bit PNG folder: the commands
+    interleaved within each round (this machine's speed drifts over minutes), wall-clock and CPU
+    time (the child's user + system time: what another virtual machine's load does not stretch)."""
+    import resource
     import subprocess
 
     cpu = str(sorted(os.sched_getaffinity(0))[0])
     n = clip.n_frames
-    rows = [f"### Whole processes (the {n} demo frames as a 16-bit PNG folder, `taskset -c {cpu}`, median of {runs})",
-            "", "| command | seconds | ms per frame | over `track` | .rrd MB per frame |", "|---|---:|---:|---:|---:|"]
+    rows = [f"### Whole processes (the {n} demo frames as a 16-bit PNG folder, `taskset -c {cpu}`, "
+            f"commands interleaved, median of {runs} rounds after a warm-up)", "",
+            "| command | seconds | CPU seconds | CPU ms per frame | over `track` (CPU) | .rrd MB per frame |",
+            "|---|---:|---:|---:|---:|---:|"]
+    commands = (("`wfviz track`", ["track", "{folder}", "--tracks", "{tmp}/t.csv"]),
+                ("`wfviz record` (defaults)", ["record", "{folder}", "-o", "{tmp}/r.rrd"]),
+                ("`wfviz record --exact-every 1`", ["record", "{folder}", "-o", "{tmp}/r.rrd", "--exact-every", "1"]),
+                ("`wfviz record --no-images`", ["record", "{folder}", "-o", "{tmp}/r.rrd", "--no-images"]))
     with tempfile.TemporaryDirectory() as d:
         tmp = Path(d)
         folder = tmp / "png16"
         folder.mkdir()
         for f in clip.frames():
             cv2.imwrite(str(folder / f"{f.index:05d}.png"), f.image)
-        base = None
-        for label, args in (("`wfviz track`", ["track", str(folder), "--tracks", str(tmp / "t.csv")]),
-                            ("`wfviz record` (defaults)", ["record", str(folder), "-o", str(tmp / "r.rrd")]),
-                            ("`wfviz record --exact-every 1`", ["record", str(folder), "-o", str(tmp / "r.rrd"),
-                                                               "--exact-every", "1"]),
-                            ("`wfviz record --no-images`", ["record", str(folder), "-o", str(tmp / "r.rrd"),
-                                                           "--no-images"])):
-            times, mb = [], 0.0
-            for _ in range(runs):
-                for p in tmp.glob("r*.rrd"):
+        wall: list[list[float]] = [[] for _ in commands]
+        cpu_s: list[list[float]] = [[] for _ in commands]
+        mb = [0.0] * len(commands)
+        for r in range(runs + 1):  # round 0 warms the disk cache and is not counted
+            for k, (_, args) in enumerate(commands):
+                for p in [*tmp.glob("r*.rrd"), *tmp.glob("*.csv")]:
                     p.unlink()
-                for p in tmp.glob("*.csv"):
-                    p.unlink()
+                argv = [a.format(folder=folder, tmp=tmp) for a in args]
+                before = resource.getrusage(resource.RUSAGE_CHILDREN)
                 t0 = time.perf_counter()
-                subprocess.run(["taskset", "-c", cpu, sys.executable, "-m", "wfviz", *args], check=True,
+                subprocess.run(["taskset", "-c", cpu, sys.executable, "-m", "wfviz", *argv], check=True,
                                capture_output=True, env={**os.environ, "OMP_NUM_THREADS": "1"})
-                times.append(time.perf_counter() - t0)
+                elapsed = time.perf_counter() - t0
+                after = resource.getrusage(resource.RUSAGE_CHILDREN)
+                if r:
+                    wall[k].append(elapsed)
+                    cpu_s[k].append(after.ru_utime + after.ru_stime - before.ru_utime - before.ru_stime)
                 if (tmp / "r.rrd").exists():
-                    mb = (tmp / "r.rrd").stat().st_size / 1e6 / n
-            sec = float(np.median(times))
-            ms = sec * 1e3 / n
+                    mb[k] = (tmp / "r.rrd").stat().st_size / 1e6 / n
+        base = None
+        for k, (label, _) in enumerate(commands):
+            sec, cpu_sec = float(np.median(wall[k])), float(np.median(cpu_s[k]))
+            ms = cpu_sec * 1e3 / n
             over = "" if base is None else f"{ms - base:+.2f}"  # the first row is `track` itself
             base = ms if base is None else base
-            rows.append(f"| {label} | {sec:.2f} | {ms:.2f} | {over} | {mb:.3f} |" if mb else
-                        f"| {label} | {sec:.2f} | {ms:.2f} | {over} | |")
+            size = f"{mb[k]:.3f}" if mb[k] else ""
+            rows.append(f"| {label} | {sec:.2f} | {cpu_sec:.2f} | {ms:.2f} | {over} | {size} |")
             print(rows[-1], flush=True)
     return rows
 
