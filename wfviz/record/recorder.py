@@ -218,11 +218,12 @@ def pixel_centres(rec: Any, paths: tuple[str, ...] = IMAGE_ENTITIES) -> None:
 
 
 class ColumnBuffer:
-    """Per-frame scalars, log lines and bar charts held for a while and sent as columns
-    (``send_columns``): one call and one chunk per entity instead of one per value, the same
-    data. Every chunk costs the .rrd writer memory until the file closes (about 2 KB for
-    scalars, 34 KB for a bar chart), so scalars and lines go every ``frames`` frames and the
-    bar charts, held compactly as arrays, every ``bar_frames``."""
+    """Per-frame scalars, log lines, bar charts and overlay instances held for a while and sent
+    as columns (``send_columns``): one call and one chunk per entity instead of one per value,
+    the same data. Every chunk costs the .rrd writer memory until the file closes (about 2 KB
+    for scalars, 34 KB for a bar chart), so scalars and lines go every ``frames`` frames, the
+    bar charts, held compactly as arrays, every ``bar_frames``, and the overlays (whose
+    per-frame building is what columns save) every ``instance_frames``."""
 
     def __init__(self, rec: rr.RecordingStream, frames: int = 1024, bar_frames: int = 4096,
                  instance_frames: int = 64) -> None:
@@ -389,8 +390,8 @@ class Recorder:
 
     The options' ``image_every`` logs the raw and stage images every N frames (0 = never), exact
     (lossless) on the first image frame of every ``exact_every`` frames and JPEG previews at
-    ``jpeg_quality`` between (:mod:`wfviz.record.images`); overlays, scalars and text are logged
-    every frame.
+    ``jpeg_quality`` between (:mod:`wfviz.record.images`); overlays, scalars and text have a row
+    every frame, sent in columns (:class:`ColumnBuffer`).
     """
 
     def __init__(self, path: Path | None, tracker: str, options: RecorderOptions, *,

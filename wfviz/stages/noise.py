@@ -28,6 +28,8 @@ from functools import lru_cache
 import cv2
 import numpy as np
 
+from wfviz import normal
+
 _MAD = 1.4826  # MAD -> sigma for Gaussian data
 _Q99 = 2.3263  # 99th percentile of a unit Gaussian
 MIN_SAMPLES = 32  # a tile with fewer valid samples takes its nearest neighbour's statistics
@@ -295,8 +297,6 @@ class TailCalibration:
     def __init__(self, tile: int = 32, quantile: float | None = None, memory: float = 0.9,
                  lo: float = 0.0, hi: float = 40.0, step: float = 0.1, min_samples: float = 1000.0,
                  refresh: int = 1) -> None:
-        from statistics import NormalDist
-
         quantile = TAIL_QUANTILE if quantile is None else quantile
         self.tile, self.quantile, self.min_samples = tile, quantile, min_samples
         self.memory = memory ** refresh
@@ -304,7 +304,7 @@ class TailCalibration:
         self.lo, self.step = lo, step
         self.nbins = int(round((hi - lo) / step))
         self.counts: np.ndarray | None = None
-        self.gauss = NormalDist().inv_cdf(quantile)
+        self.gauss = float(normal.quantile(quantile))
         self.grid: np.ndarray | None = None
         self._tiles: np.ndarray | None = None  # tile index x bins of each sampled pixel
 
