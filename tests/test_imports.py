@@ -181,3 +181,24 @@ def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
         confirmed = [r for r in csv.DictReader(f) if r["confirmed"] == "1"]
     assert "numpy" in track_mods and confirmed  # the check can see what it looks for
     assert not track_mods & heavy, track_mods & heavy
+
+
+def test_record_imports_no_pandas(tmp_path: Path) -> None:
+    """`wfviz record` without truth does not import pandas (pyarrow would at its first conversion
+    of a Python value: :func:`wfviz.record.arrow.arrow_without_pandas`), and pyarrow still converts to
+    and from pandas once something imports it."""
+    import numpy as np
+
+    rng = np.random.default_rng(1)
+    np.save(tmp_path / "clip.npy", (1000 + rng.normal(0, 10, (6, 64, 80))).astype(np.uint16))
+    mods = _modules_after("record", "clip.npy", "--output", "c.rrd", cwd=tmp_path)
+    assert "rerun" in mods and "pyarrow" in mods  # the check can see what it looks for
+    assert "pandas" not in mods
+    assert (tmp_path / "c.rrd").stat().st_size > 0
+
+    import pyarrow as pa
+
+    import wfviz.record  # noqa: F401  (the probe has run in this process too)
+    pd = __import__("pandas")
+    assert pa.table({"a": [1, 2]}).to_pandas()["a"].tolist() == [1, 2]
+    assert pa.array(pd.Series([3.0, 4.0])).to_pylist() == [3.0, 4.0]
