@@ -124,3 +124,22 @@ def test_nearest_tiles_equal_scipy_feature_transform_ties_included() -> None:
     grid = np.array([[np.nan, 2.0, np.nan], [np.nan, np.nan, np.nan], [5.0, np.nan, np.nan]])
     assert fill_missing(grid, 0.0).tolist() == [[2.0, 2.0, 2.0], [5.0, 2.0, 2.0], [5.0, 5.0, 5.0]]
     assert fill_missing(np.full((2, 2), np.nan), 7.0).tolist() == [[7.0, 7.0], [7.0, 7.0]]
+
+
+def test_tile_sums_count_each_tile() -> None:
+    """The tail calibration's per-tile pixel counts equal a count tile by tile, frames whose size
+    is not a multiple of the tile included."""
+    from wfviz.stages.noise import _tile_sums
+
+    rng = np.random.default_rng(3)
+    for h, w, tile in ((64, 96, 16), (50, 70, 16), (512, 640, 32), (33, 17, 8)):
+        mask = rng.random((h, w)) < 0.3
+        ny, nx = -(-h // tile), -(-w // tile)
+        want = np.array([[mask[i * tile:(i + 1) * tile, j * tile:(j + 1) * tile].sum() for j in range(nx)]
+                         for i in range(ny)])
+        got = _tile_sums(mask, tile, ny, nx)
+        assert got.dtype == np.int64 and np.array_equal(got, want)
+        assert np.array_equal(_tile_sums(mask[::2, ::2], tile // 2, ny, nx),
+                              np.array([[mask[::2, ::2][i * tile // 2:(i + 1) * tile // 2,
+                                                        j * tile // 2:(j + 1) * tile // 2].sum()
+                                         for j in range(nx)] for i in range(ny)]))

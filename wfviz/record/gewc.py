@@ -57,7 +57,7 @@ class GEWCRecorder(Recorder):
                 rec.log("camera/clutter", class_context([(1, "static clutter", CLUTTER_COLOR)]), static=True)
                 self.add_legend([("static clutter", CLUTTER_COLOR)])
             static = result.clutter == 1
-            self.static_once("camera/clutter", rr.Points2D.from_fields(
+            self.static_once("camera/clutter", lambda: rr.Points2D.from_fields(
                 radii=2.5, class_ids=1, colors=CLUTTER_COLOR, draw_order=DRAW_CLUTTER, show_labels=False))
             self.instances("camera/clutter", rr.Points2D, int(static.sum()),
                            positions=result.detections.xy[static].astype(np.float32).reshape(-1, 2))
@@ -65,7 +65,7 @@ class GEWCRecorder(Recorder):
         self._log_line_like(result)
         m = result.measurements
         ids = [x.track_id for x in m]
-        self.static_once("camera/centroids", rr.Points2D.from_fields(radii=0.5, draw_order=DRAW_TRACKS,
+        self.static_once("camera/centroids", lambda: rr.Points2D.from_fields(radii=0.5, draw_order=DRAW_TRACKS,
                                                                     show_labels=False))
         self.instances("camera/centroids", rr.Points2D, len(ids),
                        positions=np.array([(x.x, x.y) for x in m], dtype=np.float32).reshape(-1, 2),
@@ -90,7 +90,7 @@ class GEWCRecorder(Recorder):
         line = d.line_like()
         labels = [f"linearity {v:.2f} > {d.max_linearity:.2f}: line-like, starts no track"
                   for v in d.linearity[line].tolist()]
-        self.static_once("camera/line_like", rr.Points2D.from_fields(
+        self.static_once("camera/line_like", lambda: rr.Points2D.from_fields(
             radii=3.0, class_ids=1, colors=LINE_COLOR, draw_order=DRAW_CLUTTER, show_labels=False))
         self.instances("camera/line_like", rr.Points2D, len(labels),
                        positions=d.xy[line].astype(np.float32).reshape(-1, 2), labels=labels)

@@ -56,8 +56,11 @@ def preview_jpeg(image: np.ndarray, quality: int = PREVIEW_QUALITY) -> bytes:
 
 
 def time_columns(frames: list[int], times: list[float]) -> list[rr.TimeColumn]:
-    """The ``frame`` and ``time`` index columns of rows sent with ``send_columns``."""
-    return [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=times)]
+    """The ``frame`` and ``time`` index columns of rows sent with ``send_columns``. The times
+    (s) go in as nanoseconds rounded as Rerun rounds one value (``round(1e9 · t)``, half to
+    even), without its per-element Python conversion of a list."""
+    nanos = np.rint(np.asarray(times, dtype=np.float64) * 1e9).astype("timedelta64[ns]")
+    return [rr.TimeColumn("frame", sequence=frames), rr.TimeColumn("time", duration=nanos)]
 
 
 class ImageLog:
@@ -159,7 +162,7 @@ class ImageLog:
         if clear:
             self.rec.set_time("frame", sequence=frame)  # this thread's time (the worker's own, or the caller's)
             self.rec.set_time("time", duration=time)
-            self.rec.log(path, (rr.EncodedImage if exact else rr.Image).cleared())
+            self.rec.log(path, _cleared(rr.EncodedImage if exact else rr.Image))
         if exact:
             archetype: rr.AsComponents = rr.Image(image, draw_order=order)
         else:
@@ -178,6 +181,16 @@ class ImageLog:
                 columns = [rr.ComponentColumn(d, ArrowBatch(pa.concat_arrays(a)))
                            for d, a in zip(rows.descriptors, rows.arrays)]
                 self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=columns)
+
+
+_CLEARED: dict[type, rr.AsComponents] = {}
+
+
+def _cleared(archetype: type) -> rr.AsComponents:
+    """``archetype.cleared()``, built once (the same empty components every time)."""
+    if archetype not in _CLEARED:
+        _CLEARED[archetype] = archetype.cleared()  # type: ignore[attr-defined]
+    return _CLEARED[archetype]
 
 
 class ArrowBatch:

@@ -650,7 +650,7 @@ class Recorder:
         if noise is not None:
             if due:
                 self.image("suppressed/noise", noise.sigma.astype(np.float16), value_map=True)
-            self.scalar("detection/noise_sigma", float(np.nanmedian(noise.sigma_grid)))
+            self.scalar("detection/noise_sigma", noise.typical_sigma())
         if front.multiframe is not None and due:
             self.image("suppressed/multiframe", front.multiframe.astype(np.float16), value_map=True)
         if due:
@@ -727,16 +727,17 @@ class Recorder:
         every component (sent as columns: :meth:`ColumnBuffer.instances`)."""
         self.columns.instances(path, *self._now, archetype, n, **components)
 
-    def static_once(self, path: str, fields: Any) -> None:
-        """``fields`` (an archetype's constant components) at ``path``, static, the first time."""
+    def static_once(self, path: str, fields: Callable[[], Any]) -> None:
+        """``fields()`` (an archetype's constant components) at ``path``, static, the first time
+        (built only then: building an archetype costs about 0.1 ms)."""
         if path not in self._static_fields:
             self._static_fields.add(path)
-            self.rec.log(path, fields, static=True)
+            self.rec.log(path, fields(), static=True)
 
     def _log_common(self, result: FrameResult) -> None:
         d = result.detections
         n = len(d)
-        self.static_once("camera/detections", rr.Points2D.from_fields(
+        self.static_once("camera/detections", lambda: rr.Points2D.from_fields(
             colors=DETECTION_COLOR, class_ids=1, draw_order=DRAW_DETECTIONS, show_labels=False))
         self.instances("camera/detections", rr.Points2D, n, positions=np.asarray(d.xy, dtype=np.float32).reshape(-1, 2),
                        radii=(np.sqrt(d.area / np.pi) + 1.0).astype(np.float32))
@@ -759,10 +760,10 @@ class Recorder:
         labels = prediction_labels(preds, geo[:, :2])
         cids = class_ids(ids)
         # the labels are drawn under the gates (a point's would cover its target), on hover on the points
-        self.static_once("camera/predictions", rr.Points2D.from_fields(draw_order=DRAW_TRACKS, show_labels=False))
+        self.static_once("camera/predictions", lambda: rr.Points2D.from_fields(draw_order=DRAW_TRACKS, show_labels=False))
         self.instances("camera/predictions", rr.Points2D, len(preds), positions=geo[:, :2], class_ids=cids,
                        colors=colors, labels=labels, radii=np.where(conf, 1.5, 0.7).astype(np.float32))
-        self.static_once("camera/gates", rr.Boxes2D.from_fields(show_labels=True))
+        self.static_once("camera/gates", lambda: rr.Boxes2D.from_fields(show_labels=True))
         self.instances("camera/gates", rr.Boxes2D, len(preds), centers=geo[:, :2], half_sizes=geo[:, 2:],
                        class_ids=cids, colors=colors, labels=labels, radii=np.where(conf, 0.5, 0.2).astype(np.float32))
         self._log_trails(result)
@@ -788,7 +789,7 @@ class Recorder:
                 del self._trails[tid]
         conf = [t.track_id for t in result.tracks if t.confirmed]
         strips = [np.array(self._trails[i], dtype=np.float32) for i in conf]
-        self.static_once("camera/tracks", rr.LineStrips2D.from_fields(radii=0.6, show_labels=False))
+        self.static_once("camera/tracks", lambda: rr.LineStrips2D.from_fields(radii=0.6, show_labels=False))
         self.instances("camera/tracks", rr.LineStrips2D, len(conf), strips=strips, class_ids=class_ids(conf),
                        labels=[str(i) for i in conf], colors=track_colors(conf, color_of=self.color_of))
 

@@ -89,10 +89,10 @@ def median3(image: np.ndarray, rows: np.ndarray, cols: np.ndarray, exclude_centr
 
 def window(image: np.ndarray, rows: np.ndarray, cols: np.ndarray) -> np.ndarray:
     """The 7x7 neighbourhood of each listed pixel (edge-replicated), row by row: (n, 49)."""
-    padded = cv2.copyMakeBorder(image, 3, 3, 3, 3, cv2.BORDER_REPLICATE)
-    w = padded.shape[1]
-    centre = (rows + 3) * w + cols + 3
-    return padded.ravel()[centre[:, None] + (_SEVEN[:, 0] * w + _SEVEN[:, 1])[None, :]]
+    h, w = image.shape
+    rr = np.clip(rows[:, None] + _SEVEN[None, :, 0], 0, h - 1)  # edge-replicated: clipped indices
+    cc = np.clip(cols[:, None] + _SEVEN[None, :, 1], 0, w - 1)
+    return image[rr, cc]
 
 
 def roughness(around: np.ndarray) -> np.ndarray:
@@ -148,9 +148,12 @@ class BadPixels:
         # excess over the brightest neighbour / below the darkest (saturated at 0 for integers)
         above = cv2.subtract(src, cv2.dilate(src, _RING, borderType=cv2.BORDER_REFLECT_101))
         below = cv2.subtract(cv2.erode(src, _RING, borderType=cv2.BORDER_REFLECT_101), src)
-        seen = (above > t) | (below > t)
+        # above or below the threshold (OpenCV compares integers with a fractional level exactly)
+        up = cv2.compare(above, float(t), cv2.CMP_GT)  # type: ignore[call-overload]  # (stubs: no scalar)
+        down = cv2.compare(below, float(t), cv2.CMP_GT)  # type: ignore[call-overload]
+        seen = cv2.bitwise_or(up, down)
         old = self.index
-        seen.ravel()[old] = True
+        seen.ravel()[old] = 1
         index = np.flatnonzero(seen)  # this frame's outliers and the pixels with a history
         e = (np.maximum(above.ravel()[index], 0).astype(np.float32)
              - np.maximum(below.ravel()[index], 0).astype(np.float32))

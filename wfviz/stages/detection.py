@@ -281,8 +281,7 @@ def linearity(residual: np.ndarray, dets: Detections) -> np.ndarray:
 def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
     """The typical "cfar" threshold of a frame (DN): the median over the noise grid of
     level + ``k_sigma`` σ (inf when no tile is known)."""
-    grid = noise.level_grid + k_sigma * noise.sigma_grid
-    return float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
+    return noise.typical_threshold(k_sigma)
 
 
 def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray,

