@@ -185,8 +185,12 @@ def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
 
 def test_record_imports_no_pandas(tmp_path: Path) -> None:
     """`wfviz record` without truth does not import pandas (pyarrow would at its first conversion
-    of a Python value: :func:`wfviz.record.arrow.arrow_without_pandas`), and pyarrow still converts to
-    and from pandas once something imports it."""
+    of a Python value: :func:`wfviz.record.arrow.arrow_without_pandas`); importing
+    :mod:`wfviz.record` as a library leaves pyarrow's view of pandas alone; and after the probe
+    pyarrow still converts to and from pandas once something imports it."""
+    import subprocess
+    import sys
+
     import numpy as np
 
     rng = np.random.default_rng(1)
@@ -196,9 +200,16 @@ def test_record_imports_no_pandas(tmp_path: Path) -> None:
     assert "pandas" not in mods
     assert (tmp_path / "c.rrd").stat().st_size > 0
 
-    import pyarrow as pa
+    def run(code: str) -> str:
+        r = subprocess.run([sys.executable, "-c", code], capture_output=True, text=True, timeout=120,
+                           env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"})
+        assert r.returncode == 0, r.stderr
+        return r.stdout.split()[-1]
 
-    import wfviz.record  # noqa: F401  (the probe has run in this process too)
-    pd = __import__("pandas")
-    assert pa.table({"a": [1, 2]}).to_pandas()["a"].tolist() == [1, 2]
-    assert pa.array(pd.Series([3.0, 4.0])).to_pylist() == [3.0, 4.0]
+    # a library import probes nothing: pyarrow still finds pandas
+    assert run("import wfviz.record, pyarrow.lib as L; print(L._pandas_api.have_pandas)") == "True"
+    # after the probe: no pandas for the soft check, and the conversions that need it still work
+    assert run("from wfviz.record.arrow import arrow_without_pandas as a; a(); import sys, pyarrow as pa, "
+               "pyarrow.lib as L; assert not L._pandas_api.have_pandas and 'pandas' not in sys.modules; "
+               "import pandas as pd; assert pa.table({'a': [1, 2]}).to_pandas()['a'].tolist() == [1, 2]; "
+               "assert pa.array(pd.Series([3.0, 4.0])).to_pylist() == [3.0, 4.0]; print('ok')") == "ok"

@@ -34,6 +34,16 @@ def _escape(exc: UnicodeError) -> tuple[str, int]:
     return codecs.backslashreplace_errors(exc)
 
 
+#: commands whose process writes a recording and ends: pyarrow need not import pandas there
+#: (:func:`wfviz.record.arrow.arrow_without_pandas`)
+WRITE_ONLY = ("record", "demo")
+
+
+def _command(argv: list[str]) -> str | None:
+    """The command named on the command line (its first word that is not an option)."""
+    return next((a for a in argv if not a.startswith("-")), None)
+
+
 def main() -> None:
     """Run the command line (:mod:`wfviz.cli`)."""
     codecs.register_error("wfviz-escape", _escape)
@@ -42,6 +52,10 @@ def main() -> None:
             stream.reconfigure(errors="wfviz-escape")
     previous = signal.signal(signal.SIGINT, _exit_now)
     try:
+        if _command(sys.argv[1:]) in WRITE_ONLY and not {"--help", "-h"} & set(sys.argv[1:]):
+            from wfviz.record.arrow import arrow_without_pandas
+
+            arrow_without_pandas()
         from wfviz.cli import main as cli_main
     except KeyboardInterrupt:
         _interrupted()

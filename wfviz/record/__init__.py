@@ -6,7 +6,6 @@ from __future__ import annotations
 import importlib
 from pathlib import Path
 
-from wfviz.record import arrow  # noqa: F401  (keeps pyarrow from importing pandas)
 from wfviz.record.recorder import Recorder, track_color
 from wfviz.record_options import RecorderOptions
 from wfviz.trackers import TRACKERS

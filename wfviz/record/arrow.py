@@ -1,4 +1,4 @@
-"""pyarrow without pandas in a recording process (start-up time)."""
+"""pyarrow without pandas in a process that only writes a recording (start-up time)."""
 
 from __future__ import annotations
 
@@ -21,7 +21,12 @@ def arrow_without_pandas() -> None:
     from sequences (we pass none). That probe is answered "no" here while pandas is not loaded;
     pyarrow retries the import whenever something does need pandas (``to_pandas``), and code
     that imports pandas itself (the scores' motmetrics) is unaffected. A change in pyarrow's
-    probe only brings the import back."""
+    probe only brings the import back.
+
+    For a process that writes a recording and ends (the console commands ``record`` and
+    ``demo``: :func:`wfviz.entry.main` calls it), never on import: pyarrow then believes pandas
+    absent for the rest of the process, and converting a nanosecond timestamp that microseconds
+    cannot hold to Python (``as_py``, ``to_pylist``), which needs pandas, raises instead."""
     if "pandas" in sys.modules:
         return
     import pyarrow as pa
@@ -33,5 +38,3 @@ def arrow_without_pandas() -> None:
     finally:
         sys.meta_path.remove(finder)  # type: ignore[arg-type]
 
-
-arrow_without_pandas()
