@@ -164,9 +164,10 @@ def heavy_tail(tail: np.ndarray) -> np.ndarray:
     Multiplying sigma by it makes a threshold of k sigma cut as far into the tail as it would in
     Gaussian noise, where compression blocks, fixed-pattern stripes or texture fatten it."""
     t = fill_missing(tail, 1.0)
-    p = np.pad(t, 1, mode="edge")
+    p = cv2.copyMakeBorder(t, 1, 1, 1, 1, cv2.BORDER_REPLICATE)  # edge-padded (np.pad is 10x slower)
     stack = np.stack([p[i:i + t.shape[0], j:j + t.shape[1]] for i in range(3) for j in range(3)])
-    return np.where(np.isfinite(tail), np.maximum(np.median(stack, axis=0), 1.0), np.nan)
+    median = np.partition(stack, 4, axis=0)[4]  # the middle of 9: np.median's value, without its overhead
+    return np.where(np.isfinite(tail), np.maximum(median, 1.0), np.nan)
 
 
 def fill_missing(grid: np.ndarray, default: float) -> np.ndarray:
@@ -365,9 +366,11 @@ class TailCalibration:
         hist[:, 0] += _tile_sums(keep, t // every, ny, nx).ravel() - hist.sum(axis=1)
         self.counts += hist
         total = self.counts.sum(axis=1)
-        idx = _quantile_bins(self.counts, self.quantile * total)
-        ratio = (self.lo + (idx + 1) * self.step) / self.gauss
-        ratio = np.where(total >= self.min_samples, ratio, np.nan).reshape(ny, nx)
+        enough = np.flatnonzero(total >= self.min_samples)  # the others are NaN: not searched
+        ratio = np.full(len(total), np.nan)
+        idx = _quantile_bins(self.counts[enough], self.quantile * total[enough])
+        ratio[enough] = (self.lo + (idx + 1) * self.step) / self.gauss
+        ratio = ratio.reshape(ny, nx)
         self.grid = heavy_tail(ratio)  # 3 x 3 median, at least 1
         seen = ratio[np.isfinite(ratio)]
         least = max(1.0, float(np.quantile(seen, SHARE))) if seen.size and overall else 1.0
