@@ -367,10 +367,10 @@ class TailCalibration:
         self.counts += hist
         total = self.counts.sum(axis=1)
         enough = np.flatnonzero(total >= self.min_samples)  # the others are NaN: not searched
-        ratio = np.full(len(total), np.nan)
+        tiles_ratio = np.full(len(total), np.nan)
         idx = _quantile_bins(self.counts[enough], self.quantile * total[enough])
-        ratio[enough] = (self.lo + (idx + 1) * self.step) / self.gauss
-        ratio = ratio.reshape(ny, nx)
+        tiles_ratio[enough] = (self.lo + (idx + 1) * self.step) / self.gauss
+        ratio = tiles_ratio.reshape(ny, nx)
         self.grid = heavy_tail(ratio)  # 3 x 3 median, at least 1
         seen = ratio[np.isfinite(ratio)]
         least = max(1.0, float(np.quantile(seen, SHARE))) if seen.size and overall else 1.0
