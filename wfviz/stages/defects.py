@@ -148,12 +148,9 @@ class BadPixels:
         # excess over the brightest neighbour / below the darkest (saturated at 0 for integers)
         above = cv2.subtract(src, cv2.dilate(src, _RING, borderType=cv2.BORDER_REFLECT_101))
         below = cv2.subtract(cv2.erode(src, _RING, borderType=cv2.BORDER_REFLECT_101), src)
-        # above or below the threshold (OpenCV compares integers with a fractional level exactly)
-        up = cv2.compare(above, float(t), cv2.CMP_GT)  # type: ignore[call-overload]  # (stubs: no scalar)
-        down = cv2.compare(below, float(t), cv2.CMP_GT)  # type: ignore[call-overload]
-        seen = cv2.bitwise_or(up, down)
+        seen = (above > t) | (below > t)  # bool: flatnonzero is 15x faster on it than on 0/255 uint8
         old = self.index
-        seen.ravel()[old] = 1
+        seen.ravel()[old] = True
         index = np.flatnonzero(seen)  # this frame's outliers and the pixels with a history
         e = (np.maximum(above.ravel()[index], 0).astype(np.float32)
              - np.maximum(below.ravel()[index], 0).astype(np.float32))
