@@ -37,4 +37,3 @@ def arrow_without_pandas() -> None:
         pa.array([True])  # a Python list: pyarrow's soft pandas probe, made once
     finally:
         sys.meta_path.remove(finder)  # type: ignore[arg-type]
-
