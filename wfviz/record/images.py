@@ -15,6 +15,7 @@ from __future__ import annotations
 import os
 import queue
 import threading
+from functools import cache
 from typing import Protocol
 
 import cv2
@@ -183,14 +184,10 @@ class ImageLog:
                 self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=columns)
 
 
-_CLEARED: dict[type, rr.AsComponents] = {}
-
-
+@cache
 def _cleared(archetype: type) -> rr.AsComponents:
     """``archetype.cleared()``, built once (the same empty components every time)."""
-    if archetype not in _CLEARED:
-        _CLEARED[archetype] = archetype.cleared()  # type: ignore[attr-defined]
-    return _CLEARED[archetype]
+    return archetype.cleared()  # type: ignore[attr-defined, no-any-return]
 
 
 class ArrowBatch:

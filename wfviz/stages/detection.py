@@ -278,12 +278,6 @@ def linearity(residual: np.ndarray, dets: Detections) -> np.ndarray:
     return np.minimum(np.maximum(out, 0.0), 1.0)
 
 
-def typical_threshold(noise: NoiseEstimate, k_sigma: float) -> float:
-    """The typical "cfar" threshold of a frame (DN): the median over the noise grid of
-    level + ``k_sigma`` σ (inf when no tile is known)."""
-    return noise.typical_threshold(k_sigma)
-
-
 def path_heads(multi: np.ndarray, k: float | np.ndarray, region: np.ndarray,
                found: np.ndarray | None = None, apart: int = 2) -> np.ndarray:
     """uint8 mask (1) of the pixels of ``region`` where ``multi`` (a multi-frame significance)
@@ -346,7 +340,7 @@ def detect(residual: np.ndarray, region: np.ndarray, cfg: DetectionConfig,
         res = residual.astype(np.float32, copy=False)
         thr_map = (cv2.scaleAdd(noise.sigma, float(cfg.k_sigma), noise.level) if k_map is None
                    else cv2.add(cv2.multiply(noise.sigma, k_map), noise.level))
-        thr = typical_threshold(noise, cfg.k_sigma)  # for the record
+        thr = noise.typical_threshold(cfg.k_sigma)  # for the record
         excess = cv2.subtract(res, thr_map)
         z_of = (noise.level, noise.sigma)
     elif cfg.mode == "global" and zones:

@@ -39,7 +39,7 @@ from wfviz.config import (CircleConfig, DefectsConfig, DetectionConfig, HorizonC
                           SuppressionConfig, TrackingConfig)
 from wfviz.stages.background import TemporalBackground, change as scene_change, gain, suppress_background
 from wfviz.stages.defects import BadPixels
-from wfviz.stages.detection import Detections, detect, sample_at, score_detections, typical_threshold
+from wfviz.stages.detection import Detections, detect, sample_at, score_detections
 from wfviz.stages.horizon import Horizon, HorizonTracker, search_zones
 from wfviz.stages.imaging_circle import ImagingCircle, ImagingMask
 from wfviz.stages.multiframe import MotionIntegrator
@@ -243,7 +243,7 @@ class Preparer:
             multiframe = self._multiframe(change, camera, whole and due)
             lap("multiframe")
             # a hot pixel's spike exceeds defects.k_sigma of the typical local noise
-            bad_changed = self.bad.update(raw, typical_threshold(noise, c.defects.k_sigma))
+            bad_changed = self.bad.update(raw, noise.typical_threshold(c.defects.k_sigma))
             lap("defects")
         return PreparedFrame(image=img, raw=raw, mask=mask, mask_changed=mask_changed, valid=valid,
                              circle=self.circle, horizon=horizon, horizon_updated=horizon_updated,

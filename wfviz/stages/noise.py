@@ -47,25 +47,24 @@ class NoiseEstimate:
     sigma_grid: np.ndarray
     tile: int
     quantum: float
-    _typical: dict[float, float] = field(default_factory=dict, init=False, repr=False, compare=False)
-    _median: dict[str, float] = field(default_factory=dict, init=False, repr=False, compare=False)
+    _medians: dict[float | None, float] = field(default_factory=dict, init=False, repr=False, compare=False)
 
     def typical_threshold(self, k_sigma: float) -> float:
         """The typical "cfar" threshold (DN): the median over the tile grid of level + ``k_sigma``
         σ (inf when no tile is known); computed once per ``k_sigma`` (an estimate serves
         several frames and two stages)."""
         k = float(k_sigma)
-        if k not in self._typical:
+        if k not in self._medians:
             grid = self.level_grid + k * self.sigma_grid
-            self._typical[k] = float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
-        return self._typical[k]
+            self._medians[k] = float(np.nanmedian(grid)) if np.isfinite(grid).any() else float("inf")
+        return self._medians[k]
 
     def typical_sigma(self) -> float:
         """The median σ over the tile grid (NaN when no tile is known), computed once."""
-        if "sigma" not in self._median:
+        if None not in self._medians:
             finite = np.isfinite(self.sigma_grid).any()
-            self._median["sigma"] = float(np.nanmedian(self.sigma_grid)) if finite else float("nan")
-        return self._median["sigma"]
+            self._medians[None] = float(np.nanmedian(self.sigma_grid)) if finite else float("nan")
+        return self._medians[None]
 
     def significance(self, residual: np.ndarray) -> np.ndarray:
         """(residual - level) / sigma, float32."""
