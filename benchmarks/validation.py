@@ -9,12 +9,15 @@ chosen on one half and reported on the other. Run from the repository root:
     python benchmarks/validation.py --groups real --half A --config my.toml
     python benchmarks/validation.py --write              # docs/accuracy.md validation block of the tracker
     python benchmarks/validation.py --json out.json      # every row, for comparisons
+    python benchmarks/validation.py --starts 0 1 2 3 --json b.json   # each clip from four first frames:
+    python benchmarks/validation_diff.py a.json b.json   # a change's effect against chance, clip by clip
 """
 
 from __future__ import annotations
 
 import argparse
 import csv
+import dataclasses
 import json
 import math
 import os
@@ -45,6 +48,7 @@ class Job:
     truth: str | None
     half: str = ""
     stop: int | None = None
+    start: int = 0
 
 
 def real_half(data: Path) -> dict[str, str]:
@@ -98,7 +102,6 @@ def apply_patches(patches: list[str]) -> None:
 
 def load_with(tracker: str, config: str | None, settings: list[str]):
     """The tracker's configuration with ``section.key=value`` settings applied."""
-    import dataclasses
     import tomllib
 
     from wfviz.config import load_config
@@ -146,7 +149,7 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
 
     t0 = time.perf_counter()
     summary = run(clip, load_with(tracker, config, list(settings)), truth=truth, gate=GATES[job.group],
-                  stop=job.stop, on_frame=outside, backfill=backfill)
+                  start=job.start, stop=job.stop, on_frame=outside, backfill=backfill)
     s = summary.scores
     if backfill:
         from wfviz.sinks import BackfilledScores
@@ -158,7 +161,7 @@ def run_job(job: Job, tracker: str, config: str | None, settings: list[str] = ()
     def num(v: float) -> float | None:
         return None if v is None or not math.isfinite(v) else float(v)
 
-    return dict(group=job.group, name=job.name, half=job.half, frames=summary.frames,
+    return dict(group=job.group, name=job.name, half=job.half, start=job.start, frames=summary.frames,
                 pd=num(s.pd), pd_settled=num(s.pd_settled), fa=num(s.fa_per_frame), idsw=s.id_switches,
                 mota=num(s.mota), idf1=num(s.idf1), cle=num(s.cle_rms), ms=summary.tracker_ms,
                 outside=len(rows), wall=time.perf_counter() - t0,
@@ -209,6 +212,30 @@ def summary(results: list[dict]) -> list[str]:
     return out
 
 
+def by_start(results: list[dict]) -> list[str]:
+    """With runs from several first frames: per group (and real half), goals met, mean Pd and FA
+    from each (how far these figures move by chance alone); nothing with one start."""
+    starts = sorted({r["start"] for r in results})
+    if len(starts) < 2:
+        return []
+    out = ["", f"The same clips tracked from frames {', '.join(map(str, starts))} (the periodic re-estimations "
+               "then fall on other frames of each scene; the table below is from frame 0):"]
+    keys: dict[tuple[str, str], dict[int, list[dict]]] = defaultdict(lambda: defaultdict(list))
+    for r in results:
+        keys[(r["group"], "")][r["start"]].append(r)
+        if r["half"]:
+            keys[(r["group"], r["half"])][r["start"]].append(r)
+    for (g, h), per in keys.items():
+        met = [sum(bool(meets(r)) for r in per[s]) for s in starts]
+        pds = [sum(r["pd"] or 0.0 for r in per[s]) / len(per[s]) for s in starts]
+        fas = [sum(r["fa"] or 0.0 for r in per[s]) / len(per[s]) for s in starts]
+        goal = (f"goal met on {', '.join(map(str, met))} of {len(per[starts[0]])} (mean {sum(met) / len(met):.2f}), "
+                if meets(per[starts[0]][0]) is not None else "")
+        out.append(f"- {g}{' half ' + h if h else ''}: {goal}mean Pd {', '.join(f'{v:.3f}' for v in pds)}, "
+                   f"mean FA/frame {', '.join(f'{v:.3f}' for v in fas)}")
+    return out
+
+
 def main() -> None:
     ap = argparse.ArgumentParser(description=__doc__.splitlines()[0])
     ap.add_argument("--tracker", default="gewc")
@@ -218,6 +245,10 @@ def main() -> None:
     ap.add_argument("--half", choices=["A", "B"], default=None, help="real sequences of one half only")
     ap.add_argument("--only", nargs="+", default=None, help="clips whose name contains one of these")
     ap.add_argument("--seeds", type=int, nargs="+", default=[0])
+    ap.add_argument("--starts", type=int, nargs="+", default=[0],
+                    help="first frames to track from: each clip runs once from each (the periodic "
+                         "re-estimations then fall on other frames of the scene; benchmarks/validation_diff.py "
+                         "compares two such runs clip by clip)")
     ap.add_argument("--long-frames", type=int, default=300)
     ap.add_argument("--jobs", type=int, default=os.cpu_count() or 1)
     ap.add_argument("--json", type=Path, default=None)
@@ -229,7 +260,10 @@ def main() -> None:
     ap.add_argument("--backfill", action="store_true",
                     help="score every confirmed track from its first frame (wfviz --backfill: offline)")
     args = ap.parse_args()
-    todo = jobs(args.groups, args.tracker, args.seeds, args.long_frames, args.half, args.only)
+    if args.write and 0 not in args.starts:
+        ap.error("--write tables the runs from frame 0: --starts must include 0")
+    todo = [dataclasses.replace(j, start=s) for s in args.starts
+            for j in jobs(args.groups, args.tracker, args.seeds, args.long_frames, args.half, args.only)]
     if not todo:
         sys.exit("nothing to run (is ../shared/data there?)")
     t0 = time.perf_counter()
@@ -241,15 +275,21 @@ def main() -> None:
             r = f.result()
             results.append(r)
             ok = meets(r)
-            print(f"{r['group']:11s} {r['name']:34s} {r['half'] or '-'} Pd {fmt(r['pd'], '.3f')} "
+            name = r["name"] + (f" @{r['start']}" if r["start"] else "")
+            print(f"{r['group']:11s} {name:34s} {r['half'] or '-'} Pd {fmt(r['pd'], '.3f')} "
                   f"settled {fmt(r['pd_settled'], '.3f')} FA {fmt(r['fa'], '.3f')} IDsw {r['idsw']} "
                   f"MOTA {fmt(r['mota'], '.3f')} out {r['outside']} {r['ms']:.1f} ms"
                   f"{'' if ok is None else ('  ok' if ok else '  MISS')}", flush=True)
-    print("\n".join(summary(results)))
+    starts = sorted({r["start"] for r in results})
+    for s in starts:
+        if len(starts) > 1:
+            print(f"from frame {s}:")
+        print("\n".join(summary([r for r in results if r["start"] == s])))
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
     if args.write:
+        first = [r for r in results if r["start"] == 0]
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from doc_blocks import write_block
 
@@ -262,7 +302,7 @@ def main() -> None:
                            f"{'configuration ' + args.config if args.config else 'default configuration'}; "
                            f"confirmed tracks only; match gate 3 px for own and independent clips, 5 px for "
                            f"real ones; 'Pd (settled)' leaves out each target's first 6 visible frames).",
-                           "", *summary(results), "", *table(results)])
+                           "", *summary(first), *by_start(results), "", *table(first)])
         begin, end = (m.format(args.tracker) for m in MARKERS)
         write_block(DOC, begin, end, block, heading=f"### Validation: {args.tracker}")
 
