@@ -147,8 +147,9 @@ main()
 """
 
 
-def _modules_after(*args: str, cwd: Path) -> set[str]:
-    """The modules a whole ``wfviz ARGS`` process had imported when it ended."""
+def _modules_after(*args: str, cwd: Path, top: bool = True) -> set[str]:
+    """The modules a whole ``wfviz ARGS`` process had imported when it ended (``top``: their
+    top-level packages only)."""
     import subprocess
     import sys
 
@@ -156,7 +157,7 @@ def _modules_after(*args: str, cwd: Path) -> set[str]:
                        env={"PYTHONPATH": str(ROOT), "PATH": "/usr/bin:/bin"}, timeout=120)
     assert r.returncode == 0, r.stderr
     line = [ln for ln in r.stderr.splitlines() if ln.startswith("MODULES ")][-1]
-    return {m.split(".")[0] for m in line.split()[1:]}
+    return {m.split(".")[0] if top else m for m in line.split()[1:]}
 
 
 def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
@@ -176,11 +177,19 @@ def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
     for k, frame in enumerate(frames):  # a target crossing the frame
         frame += 400 * np.exp(-((xx - 30 - 3 * k) ** 2 + (yy - 60 - k) ** 2) / 2.0)
     np.save(tmp_path / "clip.npy", frames.astype(np.uint16))
-    track_mods = _modules_after("track", "clip.npy", "--tracks", "t.csv", cwd=tmp_path)
+    track_mods = _modules_after("track", "clip.npy", "--tracks", "t.csv", cwd=tmp_path, top=False)
+    track_mods |= {m.split(".")[0] for m in track_mods}
     with open(tmp_path / "t.csv", newline="") as f:
         confirmed = [r for r in csv.DictReader(f) if r["confirmed"] == "1"]
     assert "numpy" in track_mods and confirmed  # the check can see what it looks for
     assert not track_mods & heavy, track_mods & heavy
+    # without truth nothing is scored or explained: neither is imported
+    scoring = {"wfviz.evaluate", "wfviz.hota", "wfviz.explain"}
+    assert not track_mods & scoring, track_mods & scoring
+    np.savetxt(tmp_path / "truth.csv", [(k, 1, 30 + 3 * k, 60 + k) for k in range(30)], delimiter=",",
+               header="frame,target_id,x,y", comments="", fmt="%g")
+    scored = _modules_after("track", "clip.npy", "--truth", "truth.csv", cwd=tmp_path, top=False)
+    assert scoring <= scored, scoring - scored  # with truth they are
 
 
 def test_record_imports_no_pandas(tmp_path: Path) -> None:

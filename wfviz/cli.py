@@ -317,8 +317,10 @@ def _report(summary: RunSummary, tracks: Path | None, recording: Path | None, ex
         filled = summary.facts.get(BackfilledScores)
         if filled is not None:
             out.print(format_backfilled(filled.result), highlight=False, markup=False)
-    from wfviz.explain.report import ExplainSummary, format_summary
-    why = summary.facts.get(ExplainSummary)
+    why = None
+    if summary.scores is not None:  # the causes are explained with truth only
+        from wfviz.explain.report import ExplainSummary, format_summary
+        why = summary.facts.get(ExplainSummary)
     if why is not None:
         out.print("", highlight=False, markup=False)
         out.print(format_summary(why), highlight=False, markup=False)

@@ -14,9 +14,8 @@ from contextlib import nullcontext
 from dataclasses import dataclass, field, replace
 from pathlib import Path
 from types import FrameType
-from typing import Any, Protocol
+from typing import TYPE_CHECKING, Any, Protocol
 
-from wfviz.evaluate import EvalResult, Points
 from wfviz.io.clip import check_frame_size
 from wfviz.io.frames import Clip, Frame, read_ahead
 from wfviz.io.outputs import check_writable
@@ -24,6 +23,9 @@ from wfviz.pipeline import SinkThread, deliver, prepare_ahead, restore
 from wfviz.record_options import RecorderOptions
 from wfviz.sinks import CallbackSink, Facts, RecordingSink, RunEnd, ScoreSink, Sink, Step, TracksSink
 from wfviz.trackers.base import FrameResult, Tracker
+
+if TYPE_CHECKING:  # the scoring is imported where a run has truth only
+    from wfviz.evaluate import EvalResult, Points
 
 STOP_SIGNALS = (signal.SIGINT, signal.SIGTERM)
 
@@ -250,7 +252,11 @@ def run(clip: Clip, tracker: Tracker, *, tracks_csv: Path | None = None, recordi
     with StopSignals() as signals:  # a signal while the outputs open: they are kept, empty
         sinks = open_sinks(openers)
         summary = drive(clip, stepper, sinks, start=start, stop=stop, signals=signals, threads=threads)
-    return replace(summary, scores=summary.facts.get(EvalResult)) if truth is not None else summary
+    if truth is None:
+        return summary
+    from wfviz.evaluate import EvalResult
+
+    return replace(summary, scores=summary.facts.get(EvalResult))
 
 
 def _generator(frames: Iterator[Frame]) -> Generator[Frame, None, None]:

@@ -18,17 +18,18 @@ from contextlib import contextmanager
 from dataclasses import dataclass, field
 from functools import cached_property
 from pathlib import Path
-from typing import Any, Protocol, TypeVar
+from typing import TYPE_CHECKING, Any, Protocol, TypeVar
 
 import numpy as np
 
-from wfviz.evaluate import EvalResult, FrameErrors, Point, Points, evaluate_points, format_table, frame_errors
-from wfviz.evaluate import Box, Truth
 from wfviz.io.frames import Clip, Frame
 from wfviz.io.outputs import OutputError, TextOutput, replace_into, temp_path
 from wfviz.record_options import RecorderOptions
 from wfviz.trackers.base import FrameResult
 from wfviz.tracking import TrackState
+
+if TYPE_CHECKING:  # the scoring is imported where a run has truth only (`wfviz track` starts sooner)
+    from wfviz.evaluate import Box, EvalResult, FrameErrors, Point, Points
 
 T = TypeVar("T")
 
@@ -207,6 +208,8 @@ class FrameTruth:
 
     @cached_property
     def errors(self) -> FrameErrors:
+        from wfviz.evaluate import frame_errors
+
         return frame_errors(self.points, self.shown, self.gate, self.hidden, self.boxes)
 
 
@@ -226,6 +229,8 @@ class ScoreSink(BaseSink):
 
     def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0, backfill: bool = False) -> None:
         self.shown, self.hidden = truth
+        from wfviz.evaluate import Truth
+
         self.boxes = Truth.of(truth).boxes
         self.gate = gate
         self.run = run
@@ -244,6 +249,8 @@ class ScoreSink(BaseSink):
                                   self.boxes.get(f)), self.run)
 
     def conclude(self, end: RunEnd) -> None:
+        from wfviz.evaluate import evaluate_points
+
         if self.tracked:
             span = set(self.tracked)
             shown = {f: v for f, v in self.shown.items() if f in span}
@@ -296,6 +303,8 @@ class RecordingSink(BaseSink):
 
     def finish(self, end: RunEnd) -> None:
         rec = self.recorder
+        from wfviz.evaluate import EvalResult, format_table
+
         scores = end.facts.get(EvalResult, self.run)
         if scores is not None:
             rec.log_scores(format_table(scores))

@@ -306,6 +306,18 @@ TAIL_QUANTILE = 0.999  # TailCalibration: where the tail is measured
 TAIL_FLOOR = 2.0  # TailCalibration: significances below it are not binned (below 0.999's 3.09)
 
 
+@lru_cache(maxsize=4)
+def _tile_index(shape: tuple[int, int], every: int, tile: int, nx: int) -> np.ndarray:
+    """The tile (row-major index, ``nx`` tiles a row) of every pixel of an image of ``shape``
+    sampled every ``every``-th row and column from a frame cut in ``tile``-px tiles (int64,
+    read-only: shared by every calibration of that shape)."""
+    rows = (np.arange(shape[0], dtype=np.int64) * every) // tile
+    cols = (np.arange(shape[1], dtype=np.int64) * every) // tile
+    out = rows[:, None] * nx + cols[None, :]
+    out.flags.writeable = False
+    return out
+
+
 class TailCalibration:
     """How much heavier than a Gaussian's the upper tail of a clip's significance is, far out:
     the ``quantile`` of the significance of each ``tile`` × ``tile`` tile, pooled over frames (a
@@ -351,8 +363,7 @@ class TailCalibration:
         nx, ny = -(-w // t), -(-h // t)
         zs = z[::every, ::every]
         if self._tiles is None or self._tiles.shape != zs.shape:
-            rows, cols = np.indices(zs.shape) * every
-            self._tiles = ((rows // t) * nx + cols // t).astype(np.int64)
+            self._tiles = _tile_index(zs.shape, every, t, nx)
         keep = valid[::every, ::every] & np.isfinite(zs)
         with np.errstate(invalid="ignore"):  # NaN pixels are not kept
             high = np.flatnonzero(keep & (zs >= max(TAIL_FLOOR, self.lo)))
