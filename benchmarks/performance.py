@@ -264,6 +264,13 @@ def _timed(args: list[str], runs: int, cpus: str, cwd: Path) -> float:
 def startup_section(runs: int) -> str:
     """Whole-process times of the commands a user starts most, on one core: what they import
     before the first frame (`wfviz track` imports no Rerun, pandas, Optuna or matplotlib)."""
+    import compileall
+
+    import wfviz
+
+    # an installed package has its bytecode; a working copy may not (or PYTHONDONTWRITEBYTECODE
+    # keeps it stale), and compiling changed modules on every start is no part of start-up
+    compileall.compile_dir(str(Path(wfviz.__file__).parent), quiet=1)
     cpu = str(sorted(os.sched_getaffinity(0))[0])
     exe = _wfviz()
     rows = [f"### Start-up (whole processes, `taskset -c {cpu}`, median of {runs + 2})", "",
