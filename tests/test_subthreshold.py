@@ -12,7 +12,7 @@ import pytest
 from wfviz.config import load_config
 from wfviz.io.frames import Frame
 from wfviz.trackers import config_class, make_tracker
-from wfviz.tracking.subthreshold import POOL, NullReads, ReadNull, read_at, read_score
+from wfviz.tracking.subthreshold import POOL, WINDOW, NullReads, ReadNull, read_at, read_score
 
 H, W = 128, 160
 SIGMA = 10.0
@@ -161,4 +161,4 @@ def test_a_deletion_says_what_its_read_added() -> None:
             f += 10.0 * SIGMA * np.exp(-((xx - 20.0 - k) ** 2 + (yy - 40.0) ** 2) / (2 * 0.8 ** 2))
         r = trk.step(Frame(k, k / 25.0, np.clip(f, 0, 65535).astype(np.uint16)))
         messages += [e.message for e in r.events if e.kind == EventKind.DELETED and e.frame >= 30]
-    assert any("its read at the prediction" in m and "σ" in m for m in messages), messages
+    assert any(f"its read at the prediction (±{WINDOW} px)" in m and "σ" in m for m in messages), messages

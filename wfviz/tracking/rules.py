@@ -418,7 +418,7 @@ class SequentialRule(Rule):
                       f"confirmation after {tracks.misses[i]} consecutive misses ({tracks.hits[i]} hits)")
             if np.isfinite(read[i]) and e.read is not None:  # what this frame's read said
                 why[i] += (f"; this miss {change[i] - read[i]:+.1f} and its read at the prediction "
-                           f"{e.read[i]:.1f} σ {read[i]:+.1f}")
+                           f"(±{subthreshold.WINDOW} px) {e.read[i]:.1f} σ {read[i]:+.1f}")
         for i in np.nonzero(static)[0].tolist():
             why[i] = (f"deleted as static clutter: its last hits are not new at their place in the scene "
                       f"(not clutter {s.clutter_score[i]:.1f}, CUSUM {s.static_cusum[i]:.1f})")
