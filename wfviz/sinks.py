@@ -228,9 +228,9 @@ class ScoreSink(BaseSink):
     :class:`BackfilledScores`."""
 
     def __init__(self, truth: tuple[Points, Points], gate: float, run: int = 0, backfill: bool = False) -> None:
-        self.shown, self.hidden = truth
         from wfviz.evaluate import Truth
 
+        self.shown, self.hidden = truth
         self.boxes = Truth.of(truth).boxes
         self.gate = gate
         self.run = run
@@ -302,9 +302,9 @@ class RecordingSink(BaseSink):
         self.frames += 1
 
     def finish(self, end: RunEnd) -> None:
-        rec = self.recorder
         from wfviz.evaluate import EvalResult, format_table
 
+        rec = self.recorder
         scores = end.facts.get(EvalResult, self.run)
         if scores is not None:
             rec.log_scores(format_table(scores))
