@@ -118,6 +118,12 @@ def test_a_target_that_jumps_away_from_its_confirmed_track_is_lost(tmp_path: Pat
     # why it did not follow: predicted far from the target, its detection outside the gate
     assert "predicted" in after[0]["detail"] and "outside that gate" in after[0]["detail"], after[0]["detail"]
     assert any("ended at frame" in r["detail"] for r in after)
+    # the prediction's offset: inside the gate on the straight matched frames, the jump's 40 px after
+    matched = [r for r in rs if 8 <= int(r["frame"]) < 20]
+    assert all(float(r["pred_dist"]) < 1.5 and float(r["pred_gate"]) < 0.5 for r in matched), matched
+    jump = after[0]
+    assert float(jump["pred_dist"]) > 35 and float(jump["pred_gate"]) > 1, jump
+    assert all(r["pred_dist"] == "" for r in rs if not r["track_id"])  # no track: no prediction
 
 
 def test_a_target_on_a_hot_pixel_is_replaced_as_a_defect(tmp_path: Path) -> None:

@@ -16,7 +16,7 @@ from wfviz.explain.types import MISSES, Cause, FalseCause, FalseExplanation, Tru
 from wfviz.io.outputs import TextOutput
 
 EXPLAIN_HEADER = ("frame", "target_id", "cause", "detail", "significance", "det_dist", "track_id",
-                  "x", "y", "residual", "change", "threshold", "test", "statistic", "level")
+                  "x", "y", "residual", "change", "threshold", "test", "statistic", "level", "pred_dist", "pred_gate")
 #: the causes whose rows name the confirmation test that held their tentative track back
 HELD = (Cause.LATENCY, Cause.NOT_CONFIRMED)
 FALSE_HEADER = ("frame", "track_id", "cause", "detail", "x", "y")
@@ -59,7 +59,8 @@ class ExplainWriter:
         self.truth.write("".join(
             f"{e.frame},{e.target_id},{e.cause.value},{_text(e.detail)},{_num(e.significance)},{_num(e.det_dist, '.3f')},"
             f"{'' if e.track_id is None else e.track_id},{e.x:.3f},{e.y:.3f},{_num(e.residual)},{_num(e.change)},"
-            f"{_num(e.threshold)},{_text(e.test)},{_num(e.statistic, '.4g')},{_num(e.level, '.4g')}\r\n"
+            f"{_num(e.threshold)},{_text(e.test)},{_num(e.statistic, '.4g')},{_num(e.level, '.4g')},"
+            f"{_num(e.pred_dist, '.3f')},{_num(e.pred_gate, '.3f')}\r\n"
             for e in truth))
         self.false.write("".join(f"{e.frame},{e.track_id},{e.cause.value},{_text(e.detail)},{e.x:.3f},{e.y:.3f}\r\n"
                                  for e in false))

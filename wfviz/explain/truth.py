@@ -101,6 +101,7 @@ class TruthCauses:
         self._deleted: dict[int, tuple[int, str]] = {}   # track -> (frame, the deletion's message)
         self._boxes: Mapping[int, Box] = {}
         self._track_xy = np.zeros((0, 2))  # this frame's track positions (rows as result.tracks)
+        self._preds: dict[int, tuple[float, float, float, float]] = {}  # track -> (x, y, half w, half h)
 
     def near(self, target: Point, xy: np.ndarray) -> np.ndarray:
         """Which points ``xy`` (N, 2) lie "within the gate" of ``target``: the scorer's rule
@@ -124,6 +125,7 @@ class TruthCauses:
         front: FrontEndResult | None = getattr(result, "front", None)
         dets = result.detections
         self._track_xy = np.array([(t.x, t.y) for t in result.tracks], dtype=np.float64).reshape(-1, 2)
+        self._preds = {p.track_id: (p.x, p.y, p.half_w, p.half_h) for p in result.predictions}
         out = [self._one(result, front, dets, tid, x, y, matched) for tid, x, y in shown]
         for tid, track in matched.items():
             self._owner[tid] = (track, f)
@@ -145,7 +147,7 @@ class TruthCauses:
         def say(cause: Cause, detail: str = "", track: int | None = None, held: Check | None = None) -> TruthExplanation:
             test = ("", math.nan, math.nan) if held is None else (held.name, held.value, held.level)
             return TruthExplanation(f, tid, x, y, cause, detail, sig.value, sig.residual, sig.change, sig.threshold,
-                                    det_dist, track, *test)
+                                    det_dist, track, *test, *self._offset(track, x, y))
 
         if tid in matched:
             return say(Cause.MATCHED, "", matched[tid])
@@ -187,6 +189,15 @@ class TruthCauses:
                        t.track_id)
         j = int(np.argmin(np.where(near, d, np.inf)))
         return say(Cause.NOT_ASSOCIATED, *self._unassociated(result, dets, j, x, y))
+
+    def _offset(self, track: int | None, x: float, y: float) -> tuple[float, float]:
+        """(px, share of the gate's half sizes) from ``track``'s prediction of this frame to (x, y);
+        NaN when there is no such prediction."""
+        p = self._preds.get(track) if track is not None else None
+        if p is None:
+            return math.nan, math.nan
+        dx, dy = x - p[0], y - p[1]
+        return math.hypot(dx, dy), max(abs(dx) / max(p[2], 1e-9), abs(dy) / max(p[3], 1e-9))
 
     def _region_detail(self, result: FrameResult, front: FrontEndResult, x: float, y: float) -> str:
         """Why (x, y) inside the imaging circle lies outside the searched region."""

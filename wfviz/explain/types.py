@@ -50,7 +50,11 @@ class TruthExplanation:
     change's, as a detection's; NaN: the tracker has no noise stage), ``residual`` and ``change``
     the two parts, ``threshold`` the level (σ) a detection needed there; ``det_dist``: distance to
     the nearest detection of the frame (NaN: none); ``track_id``: the track the cause refers to
-    (None: none)."""
+    (None: none); ``pred_dist``: how far that track's prediction of this frame lies from the
+    point (px) and ``pred_gate`` that offset against the gate's half sizes (the larger of
+    |dx| / half width and |dy| / half height: above 1 the point lies outside the gate; NaN: no
+    track, or it predicted nothing this frame). A manoeuvre shows as ``pred_gate`` growing over
+    the matched frames before a loss."""
 
     frame: int
     target_id: int
@@ -67,6 +71,8 @@ class TruthExplanation:
     test: str = ""
     statistic: float = math.nan
     level: float = math.nan
+    pred_dist: float = math.nan
+    pred_gate: float = math.nan
 
 
 @dataclass(frozen=True)
