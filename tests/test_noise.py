@@ -71,6 +71,11 @@ def test_data_quantum_of_stretched_8_bit_data() -> None:
     assert data_quantum(img) == 17.0
     assert data_quantum(np.array([[3, 4], [5, 9]], dtype=np.uint16)) == 1.0
     assert data_quantum(np.zeros((2, 2), np.float32)) == 0.0
+    # signed data whose gaps exceed the type's range (an int8 difference of 200 wrapped to -56)
+    assert data_quantum(np.array([[-100, 100]], np.int8)) == 200.0
+    assert data_quantum(np.array([[-32768, 32767]], np.int16)) == 65535.0
+    assert data_quantum(np.array([[5, 5], [5, 5]], np.uint16)) == 1.0  # one grey level
+    assert data_quantum(np.zeros((0, 3), np.uint16)) == 1.0
 
 
 def test_quantised_flat_data_keeps_a_sigma_of_one_step() -> None:

@@ -21,6 +21,7 @@ import cv2
 import numpy as np
 
 from wfviz.config import HorizonConfig
+from wfviz.stages.noise import data_quantum
 
 #: Working resolution: the frame is area-averaged by f = ceil(max(h, w) / WORK_SIZE)
 #: (suggested config name ``horizon.work_size``).
@@ -175,13 +176,7 @@ def grey_step(image: np.ndarray) -> float:
     from every other row and column); 0 for float data or more than 16 bits."""
     if image.dtype.kind not in "iu" or image.itemsize > 2:
         return 0.0
-    sub = image[::2, ::2]
-    if sub.dtype.kind == "i":
-        sub = sub.astype(np.int64) - int(sub.min())
-    present = np.nonzero(np.bincount(sub.ravel()))[0]
-    if present.size < 2:
-        return 1.0
-    return float(np.gcd.reduce(np.diff(present)))
+    return data_quantum(image[::2, ::2])
 
 
 def _downsample(image: np.ndarray, valid: np.ndarray, factor: int) -> tuple[np.ndarray, np.ndarray]:

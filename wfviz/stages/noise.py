@@ -85,7 +85,14 @@ def data_quantum(image: np.ndarray) -> float:
     levels were stretched over 0..255); 0 for float data."""
     if image.dtype.kind not in "iu":
         return 0.0
-    values = np.unique(image)
+    if image.size == 0:
+        return 1.0
+    if image.itemsize <= 2:  # the values present, from a histogram: a sort's result, 10x sooner
+        flat = image.ravel()
+        values = np.flatnonzero(np.bincount(flat - flat.min() if flat.dtype.kind == "u" else
+                                            flat.astype(np.int64) - int(flat.min())))
+    else:
+        values = np.unique(image)
     if values.size < 2:
         return 1.0
     return float(np.gcd.reduce(np.diff(values).astype(np.int64)))
