@@ -218,8 +218,7 @@ def by_start(results: list[dict]) -> list[str]:
     starts = sorted({r["start"] for r in results})
     if len(starts) < 2:
         return []
-    out = ["", f"The same clips tracked from frames {', '.join(map(str, starts))} (the periodic re-estimations "
-               "then fall on other frames of each scene; the table below is from frame 0):"]
+    out = []
     keys: dict[tuple[str, str], dict[int, list[dict]]] = defaultdict(lambda: defaultdict(list))
     for r in results:
         keys[(r["group"], "")][r["start"]].append(r)
@@ -285,11 +284,17 @@ def main() -> None:
         if len(starts) > 1:
             print(f"from frame {s}:")
         print("\n".join(summary([r for r in results if r["start"] == s])))
+    if len(starts) > 1:  # each group's figures side by side
+        print(f"from frames {', '.join(map(str, starts))}:")
+        print("\n".join(by_start(results)))
     print(f"({time.perf_counter() - t0:.0f} s)")
     if args.json:
         args.json.write_text(json.dumps(results, indent=1) + "\n", encoding="utf-8")
     if args.write:
         first = [r for r in results if r["start"] == 0]
+        started = ["", f"The same clips tracked from frames {', '.join(map(str, starts))} (the periodic "
+                       "re-estimations then fall on other frames of each scene; the table below is from frame 0):",
+                   *by_start(results)] if len(starts) > 1 else []
         sys.path.insert(0, str(Path(__file__).resolve().parent))
         from doc_blocks import write_block
 
@@ -302,7 +307,7 @@ def main() -> None:
                            f"{'configuration ' + args.config if args.config else 'default configuration'}; "
                            f"confirmed tracks only; match gate 3 px for own and independent clips, 5 px for "
                            f"real ones; 'Pd (settled)' leaves out each target's first 6 visible frames).",
-                           "", *summary(first), *by_start(results), "", *table(first)])
+                           "", *summary(first), *started, "", *table(first)])
         begin, end = (m.format(args.tracker) for m in MARKERS)
         write_block(DOC, begin, end, block, heading=f"### Validation: {args.tracker}")
 
