@@ -74,6 +74,7 @@ def test_data_quantum_of_stretched_8_bit_data() -> None:
     # signed data whose gaps exceed the type's range (an int8 difference of 200 wrapped to -56)
     assert data_quantum(np.array([[-100, 100]], np.int8)) == 200.0
     assert data_quantum(np.array([[-32768, 32767]], np.int16)) == 65535.0
+    assert data_quantum(np.array([[-(2 ** 31), 2 ** 31 - 1]], np.int32)) == 2.0 ** 32 - 1
     assert data_quantum(np.array([[5, 5], [5, 5]], np.uint16)) == 1.0  # one grey level
     assert data_quantum(np.zeros((0, 3), np.uint16)) == 1.0
 

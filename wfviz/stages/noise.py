@@ -89,13 +89,14 @@ def data_quantum(image: np.ndarray) -> float:
         return 1.0
     if image.itemsize <= 2:  # the values present, from a histogram: a sort's result, 10x sooner
         flat = image.ravel()
-        values = np.flatnonzero(np.bincount(flat - flat.min() if flat.dtype.kind == "u" else
-                                            flat.astype(np.int64) - int(flat.min())))
+        # from 0 (unsigned data stays in its type: bincount counts it several times faster)
+        shifted = flat - flat.min() if flat.dtype.kind == "u" else flat.astype(np.int64) - int(flat.min())
+        values = np.flatnonzero(np.bincount(shifted))
     else:
         values = np.unique(image)
     if values.size < 2:
         return 1.0
-    return float(np.gcd.reduce(np.diff(values).astype(np.int64)))
+    return float(np.gcd.reduce(np.diff(values.astype(np.int64))))  # in int64: no gap wraps
 
 
 def tile_samples(residual: np.ndarray, valid: np.ndarray, tile: int, step: int = 2) -> np.ndarray:
