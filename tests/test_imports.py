@@ -162,13 +162,14 @@ def _modules_after(*args: str, cwd: Path, top: bool = True) -> set[str]:
 
 def test_help_and_track_import_no_heavy_packages(tmp_path: Path) -> None:
     """`wfviz --help` imports no numpy; `wfviz track` (GEWC, the default) imports neither Rerun nor
-    pandas, Optuna, matplotlib, nor SciPy (their import is most of a short run's start-up:
-    docs/performance.md), even once tracks are gated and confirmed."""
+    pandas, Optuna, matplotlib, SciPy, nor pydantic (their import is most of a short run's start-up:
+    docs/performance.md; typer 0.29 converts every argument with pydantic, hence the pin below
+    0.29 in pyproject.toml), even once tracks are gated and confirmed."""
     import csv
 
     import numpy as np
 
-    heavy = {"rerun", "pandas", "optuna", "matplotlib", "motmetrics", "pyarrow", "scipy"}
+    heavy = {"rerun", "pandas", "optuna", "matplotlib", "motmetrics", "pyarrow", "scipy", "pydantic"}
     help_mods = _modules_after("--help", cwd=tmp_path)
     assert not help_mods & (heavy | {"numpy", "cv2"}), help_mods & (heavy | {"numpy", "cv2"})
     rng = np.random.default_rng(0)
