@@ -13,7 +13,8 @@ import pytest
 from rerun.chunk import RrdReader
 
 from conftest import needs_vulkan
-from wfviz.record.images import preview_jpeg
+from wfviz.record import images
+from wfviz.record.images import ImageLog, image_row, preview_jpeg
 
 N = 25
 
@@ -82,6 +83,94 @@ def recorded(tmp_path_factory):
                                str(tmp / f"{name}.rrd"), *extra], capture_output=True, text=True, timeout=300)
         assert proc.returncode == 0, proc.stderr
     return tmp, frames
+
+
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64, np.int32])
+def test_image_rows_hold_what_rerun_would(dtype):
+    """An exact image's row is the buffer and the other components ``rr.Image`` gives, on the
+    kind's first image (Rerun converts it) and on the next ones (taken as bytes), strided too."""
+    import rerun as rr
+
+    rng = np.random.default_rng(3)
+    for k in range(3):
+        image = (rng.random((30, 41)) * 200).astype(dtype)
+        if k == 2:
+            image = np.asarray(rng.random((30, 82)) * 200, dtype=dtype)[:, ::2]  # not contiguous
+        data, template = image_row(image, -10.0)
+        ref = list(rr.Image(image, draw_order=-10.0).as_component_batches())
+        assert template.names == tuple(str(b.component_descriptor()) for b in ref)
+        for i, b in enumerate(ref):
+            got = data if i == template.blob else template.constants[i]
+            want = b.as_arrow_array().values.to_numpy().tobytes() if i == template.blob else b.as_arrow_array()
+            assert got == want, (k, template.names[i])
+
+
+def test_a_kind_rerun_converts_is_converted_every_time(monkeypatch):
+    """Where Rerun's buffer is not the image's bytes, no later image of the kind is taken as
+    bytes: Rerun converts each (and each row still holds Rerun's buffer)."""
+    import rerun as rr
+
+    real = rr.Image
+    calls = []
+
+    def converting(image, **kw):  # a Rerun that stores the image transposed
+        calls.append(1)
+        return real(np.ascontiguousarray(image.T).reshape(image.shape), **kw)
+
+    monkeypatch.setattr(images.rr, "Image", converting)
+    monkeypatch.setattr(images, "_image_kinds", {})
+    rng = np.random.default_rng(4)
+    for k in range(3):
+        image = rng.integers(0, 60000, (6, 9)).astype(np.uint16)
+        data, _ = image_row(image, -10.0)
+        assert data == np.ascontiguousarray(image.T).tobytes()
+    assert len(calls) == 3
+
+
+def test_image_log_sends_the_rows_rerun_would(tmp_path):
+    """Rows sent as columns by :class:`ImageLog` read back as the archetypes logged one by one."""
+    import rerun as rr
+
+    rng = np.random.default_rng(5)
+    frames = [(rng.random((24, 32)) * 4000).astype(np.uint16) for _ in range(7)]
+    paths = {}
+    for how in ("columns", "archetypes"):
+        rec = rr.RecordingStream(f"images-{how}")
+        paths[how] = tmp_path / f"{how}.rrd"
+        rec.save(paths[how])
+        if how == "columns":
+            log = ImageLog(rec, exact_every=3, threaded=False)
+            for n, f in enumerate(frames):
+                if log.begin_frame(n, n, n / 25):
+                    log.log("camera/image", f)
+                    log.log("suppressed/noise", f.astype(np.float32) / 7, value_map=True)
+            log.close()
+        else:
+            for n, f in enumerate(frames):
+                rec.set_time("frame", sequence=n)
+                exact = n % 3 == 0
+                rec.log("camera/image", rr.Image(f, draw_order=images.IMAGE_DRAW_ORDER) if exact else
+                        rr.EncodedImage(contents=preview_jpeg(f), media_type="image/jpeg",
+                                        draw_order=images.IMAGE_DRAW_ORDER))
+                rec.log("suppressed/noise", rr.Image(f.astype(np.float32) / 7, draw_order=images.MAP_DRAW_ORDER))
+        rec.flush()
+        rec.disconnect()  # writes the file's footer
+
+    def values(path):
+        out = {}
+        for chunk in RrdReader(path).stream():
+            if chunk.is_static or chunk.entity_path not in ("/camera/image", "/suppressed/noise"):
+                continue
+            b = chunk.to_record_batch()
+            for name in b.schema.names:
+                if name.startswith(("Image:", "EncodedImage:")):
+                    for fr, v in zip(b.column("frame").to_pylist(), b.column(name).to_pylist()):
+                        if v is not None and len(v):
+                            out[(chunk.entity_path, fr, name)] = v
+        return out
+
+    got, want = values(paths["columns"]), values(paths["archetypes"])
+    assert len(want) == 7 * 2 * 3 and got == want
 
 
 def test_exact_every_tenth_frame_previews_between(recorded):
