@@ -1,11 +1,13 @@
 """How much of a tracker's step is spent inside OpenCV calls, which are compiled already.
 
-Every OpenCV function is wrapped with a timer before wfviz is imported, so every call the
-tracker makes is counted. There is no profiler, so the step times stay close to
+Every function of the ``cv2`` namespace is wrapped with a timer before wfviz is imported, so
+every call the tracker makes is counted (the trackers call OpenCV functions only, no OpenCV
+object's methods). There is no profiler, so the step times stay close to
 `wfviz bench`. The OpenCV share is a floor for the per-frame budget: compiling the NumPy and
 Python between the calls cannot take it away. Only fewer or cheaper OpenCV passes can.
 
-    taskset -c 1 python benchmarks/opencv_share.py [CLIP] [--tracker gewc] [--rounds 3]
+    taskset -c 1 python benchmarks/opencv_share.py [CLIP] [--tracker gewc] [--rounds 3] [--frames 160]
+    taskset -c 1 python benchmarks/opencv_share.py synth:uniform-50hz --tracker fusion --frames 200
 
 CLIP defaults to `demo`, the demo clip (160 frames of 640x512, as `wfviz demo` and
 `benchmarks/performance.py` use); any clip `wfviz track` reads works. Frames are decoded first,

@@ -57,7 +57,7 @@ from step_timing import time_steps
 DOC = Path(__file__).resolve().parents[1] / "docs" / "performance.md"
 SECTIONS = ("trackers", "record", "startup", "cores", "decode", "peers")
 PACKAGES = ("numpy", "opencv-python-headless", "scipy", "rerun-sdk")  # versions in the table heads
-# tracker -> (clip, budget: median ms per frame from the performance issue, 38)
+# tracker -> (clip, budget: median ms per frame from issue #38)
 TRACKER_CASES = {
     "gewc": ("demo (640x512, 180°, 4 targets)", 3.0),
     "fusion": ("uniform-50hz (480x320)", 2.0),
@@ -289,7 +289,31 @@ def startup_section(runs: int) -> str:
             sec = _timed(args, runs + 2, cpu, tmp)
             rows.append(f"| {label} | {sec:.2f} |")
             print(rows[-1], flush=True)
+        outside = _outside_frames([*exe, "track", "two.npy", "--tracks", "t.csv"], runs + 2, cpu, tmp)
+        rows.append(f"| `wfviz track` on that clip before its first frame and after its last (the whole process "
+                    f"less the run's own time, which it prints: imports, command line, opening the clip, exit) "
+                    f"| {outside:.2f} |")
+        print(rows[-1], flush=True)
     return "\n".join(rows)
+
+
+def _outside_frames(args: list[str], runs: int, cpus: str, cwd: Path) -> float:
+    """Median wall seconds of the command ``args`` (a `wfviz track`) outside its frames: the
+    whole process less the run's time that it prints (``done: N frames in S s``)."""
+    import re
+    import subprocess
+
+    times = []
+    for _ in range(runs):
+        t0 = time.perf_counter()
+        r = subprocess.run(["taskset", "-c", cpus, *args], check=True, capture_output=True, text=True, cwd=cwd,
+                           env={**os.environ, "OMP_NUM_THREADS": "1", "COLUMNS": "200"})
+        wall = time.perf_counter() - t0
+        m = re.search(r"frames in ([\d.]+) s", r.stdout + r.stderr)
+        if m is None:
+            raise RuntimeError(f"no 'frames in S s' in the output of {' '.join(args)}")
+        times.append(wall - float(m.group(1)))
+    return float(np.median(times))
 
 
 # -- one core against two ---------------------------------------------------------------------

@@ -13,8 +13,9 @@ import pytest
 from rerun.chunk import RrdReader
 
 from conftest import needs_vulkan
-from wfviz.record import images
-from wfviz.record.images import ImageLog, image_row, preview_jpeg
+from wfviz.record import image_rows, images
+from wfviz.record.image_rows import image_row
+from wfviz.record.images import ImageLog, preview_jpeg
 
 N = 25
 
@@ -85,29 +86,37 @@ def recorded(tmp_path_factory):
     return tmp, frames
 
 
-@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float32, np.float64, np.int32])
-def test_image_rows_hold_what_rerun_would(dtype):
-    """An exact image's row is the buffer and the other components ``rr.Image`` gives, on the
-    kind's first image (Rerun converts it) and on the next ones (taken as bytes), strided too."""
+@pytest.mark.parametrize("dtype", [np.uint8, np.uint16, np.float16, np.float32, np.float64, np.int32])
+def test_image_rows_hold_what_rerun_would(dtype, monkeypatch):
+    """An exact image's row is the buffer and the other components ``rr.Image`` gives: on the
+    kind's first image (Rerun converts it) and on the next ones, which are taken as bytes
+    (strided and Fortran-ordered ones too)."""
     import rerun as rr
 
+    monkeypatch.setattr(image_rows, "_image_kinds", {})
     rng = np.random.default_rng(3)
-    for k in range(3):
+    for k in range(4):
         image = (rng.random((30, 41)) * 200).astype(dtype)
         if k == 2:
             image = np.asarray(rng.random((30, 82)) * 200, dtype=dtype)[:, ::2]  # not contiguous
+        if k == 3:
+            image = np.asfortranarray(image)
         data, template = image_row(image, -10.0)
         ref = list(rr.Image(image, draw_order=-10.0).as_component_batches())
         assert template.names == tuple(str(b.component_descriptor()) for b in ref)
         for i, b in enumerate(ref):
-            got = data if i == template.blob else template.constants[i]
-            want = b.as_arrow_array().values.to_numpy().tobytes() if i == template.blob else b.as_arrow_array()
-            assert got == want, (k, template.names[i])
+            want = b.as_arrow_array()
+            if i == template.blob:
+                assert data == want.flatten().to_numpy(zero_copy_only=False).tobytes(), k
+            else:
+                assert template.constants[i] == want, (k, template.names[i])
+    # the fast path was taken: Rerun's buffer is the image's bytes for this kind
+    assert image_rows._image_kinds[((30, 41), np.dtype(dtype).str, -10.0)][1]
 
 
 def test_a_kind_rerun_converts_is_converted_every_time(monkeypatch):
     """Where Rerun's buffer is not the image's bytes, no later image of the kind is taken as
-    bytes: Rerun converts each (and each row still holds Rerun's buffer)."""
+    bytes: Rerun converts each (and each row holds Rerun's buffer)."""
     import rerun as rr
 
     real = rr.Image
@@ -117,29 +126,33 @@ def test_a_kind_rerun_converts_is_converted_every_time(monkeypatch):
         calls.append(1)
         return real(np.ascontiguousarray(image.T).reshape(image.shape), **kw)
 
-    monkeypatch.setattr(images.rr, "Image", converting)
-    monkeypatch.setattr(images, "_image_kinds", {})
+    monkeypatch.setattr(image_rows.rr, "Image", converting)
+    monkeypatch.setattr(image_rows, "_image_kinds", {})
     rng = np.random.default_rng(4)
-    for k in range(3):
+    for _ in range(3):
         image = rng.integers(0, 60000, (6, 9)).astype(np.uint16)
         data, _ = image_row(image, -10.0)
         assert data == np.ascontiguousarray(image.T).tobytes()
     assert len(calls) == 3
 
 
-def test_image_log_sends_the_rows_rerun_would(tmp_path):
-    """Rows sent as columns by :class:`ImageLog` read back as the archetypes logged one by one."""
+@pytest.mark.parametrize("threaded", [False, True])
+def test_image_log_sends_the_rows_rerun_would(tmp_path, threaded, monkeypatch):
+    """Rows sent as columns by :class:`ImageLog` read back as the archetypes logged one by one:
+    previews and exact images, value maps, an entity whose image size changes within a chunk,
+    chunks split by their row count, with and without the worker thread."""
     import rerun as rr
 
+    monkeypatch.setattr(ImageLog, "ROWS", 4)
     rng = np.random.default_rng(5)
-    frames = [(rng.random((24, 32)) * 4000).astype(np.uint16) for _ in range(7)]
+    frames = [(rng.random((24, 32) if n < 5 else (20, 36)) * 4000).astype(np.uint16) for n in range(11)]
     paths = {}
     for how in ("columns", "archetypes"):
         rec = rr.RecordingStream(f"images-{how}")
         paths[how] = tmp_path / f"{how}.rrd"
         rec.save(paths[how])
         if how == "columns":
-            log = ImageLog(rec, exact_every=3, threaded=False)
+            log = ImageLog(rec, exact_every=3, threaded=threaded)
             for n, f in enumerate(frames):
                 if log.begin_frame(n, n, n / 25):
                     log.log("camera/image", f)
@@ -170,7 +183,7 @@ def test_image_log_sends_the_rows_rerun_would(tmp_path):
         return out
 
     got, want = values(paths["columns"]), values(paths["archetypes"])
-    assert len(want) == 7 * 2 * 3 and got == want
+    assert len(want) == 11 * 2 * 3 and got == want
 
 
 def test_exact_every_tenth_frame_previews_between(recorded):

@@ -23,6 +23,7 @@ import numpy as np
 import pyarrow as pa
 import rerun as rr
 
+from wfviz.record.image_rows import ImageRows, image_row, preview_template
 from wfviz.record_options import EXACT_EVERY, PREVIEW_QUALITY
 
 IMAGE_DRAW_ORDER = -10.0  # exact images and previews alike (a tie would be drawn in any order)
@@ -92,7 +93,7 @@ class ImageLog:
         self._block = -1  # the exact_every block whose exact images were logged
         self._kind: dict[str, bool] = {}  # entity -> last logged exact (True) or preview (False)
         self._now = (0, 0.0)
-        self._pending: dict[tuple[str, bool], _Rows] = {}  # (path, exact) -> rows not sent
+        self._pending: dict[tuple[str, bool], ImageRows] = {}  # (path, exact) -> rows not sent
         if threaded is None:
             threaded = image_every > 0 and len(os.sched_getaffinity(0)) > 1
         self._jobs: queue.Queue | None = queue.Queue(self.QUEUE) if threaded else None
@@ -167,15 +168,11 @@ class ImageLog:
         if exact:
             data, template = image_row(image, order)
         else:
-            data = preview_jpeg(image, self.quality)
-            template = _preview_template(order)
+            data, template = preview_jpeg(image, self.quality), preview_template(order)
         key = (path, exact)
         rows = self._pending.get(key)
-        if rows is not None and rows.template.names != template.names:
-            self._send_rows(key)  # another set of components (cannot happen with Rerun 0.41's two archetypes)
-            rows = None
         if rows is None:
-            rows = self._pending[key] = _Rows(template)
+            rows = self._pending[key] = ImageRows(template.names)
         rows.add(frame, time, data, template)
         if len(rows.frames) >= self.ROWS or rows.nbytes >= self.CHUNK_BYTES:
             self._send_rows(key)
@@ -185,7 +182,8 @@ class ImageLog:
         for key in [only] if only is not None else list(self._pending):
             rows = self._pending.pop(key, None)
             if rows is not None and rows.frames:
-                self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=rows.columns())
+                columns = [rr.ComponentColumn(d, ArrowBatch(a)) for d, a in rows.columns()]
+                self.rec.send_columns(key[0], indexes=time_columns(rows.frames, rows.times), columns=columns)
 
 
 @cache
@@ -202,93 +200,3 @@ class ArrowBatch:
 
     def as_arrow_array(self) -> pa.Array:
         return self._array
-
-
-class _Template:
-    """An image archetype's components as Arrow: the one that holds the image's bytes
-    (``list<uint8>``: ``Image:buffer``, ``EncodedImage:blob``) at ``blob``, the others' one-row
-    arrays, the same for every image of a kind (format, media type, draw order)."""
-
-    def __init__(self, archetype: rr.AsComponents) -> None:
-        batches = list(archetype.as_component_batches())
-        self.descriptors = [b.component_descriptor() for b in batches]
-        self.names = tuple(str(d) for d in self.descriptors)  # "Image:buffer", ...
-        arrays = [b.as_arrow_array() for b in batches]
-        blobs = [i for i, a in enumerate(arrays) if a.type == BLOB_TYPE]
-        if len(blobs) != 1:
-            raise ValueError(f"expected one {BLOB_TYPE} component, got {[str(a.type) for a in arrays]}")
-        self.blob = blobs[0]
-        self.constants: list[pa.Array | None] = [None if i == self.blob else a for i, a in enumerate(arrays)]
-        self.nbytes = sum(a.nbytes for a in arrays if a is not arrays[self.blob])
-
-    def blob_bytes(self, archetype: rr.AsComponents) -> bytes:
-        """The bytes ``archetype`` (of this template's kind) holds in its blob component."""
-        array = list(archetype.as_component_batches())[self.blob].as_arrow_array()
-        return array.values.to_numpy(zero_copy_only=False).tobytes()
-
-
-BLOB_TYPE = pa.list_(pa.field("item", pa.uint8(), nullable=False))
-
-
-@cache
-def _preview_template(order: float) -> _Template:
-    return _Template(rr.EncodedImage(contents=b"\xff", media_type="image/jpeg", draw_order=order))
-
-
-_image_kinds: dict[tuple, tuple[_Template, bool]] = {}  # (shape, dtype, order) -> template, raw bytes
-
-
-def image_row(image: np.ndarray, order: float) -> tuple[bytes, _Template]:
-    """``rr.Image(image, draw_order=order)`` as the bytes of its buffer and the template of its
-    other components. Rerun's own conversion (about 0.3 ms for a 640x512 image, in Python) runs
-    once per shape, dtype and draw order: where its buffer is the image's bytes in C order
-    (checked on that first image), the next images of the kind are taken as bytes; any other
-    kind is converted by Rerun every time."""
-    key = (image.shape, image.dtype.str, order)
-    known = _image_kinds.get(key)
-    if known is not None and known[1]:
-        return image.tobytes(), known[0]
-    archetype = rr.Image(image, draw_order=order)
-    template = _Template(archetype)
-    data = template.blob_bytes(archetype)
-    if known is None:
-        _image_kinds[key] = (template, data == image.tobytes())
-    return data, template
-
-
-class _Rows:
-    """One entity's images of one kind not sent yet: each row's image bytes and the one-row
-    arrays of its other components; sent as one chunk, the bytes as one ``list<uint8>`` column
-    (no Arrow array a row, and no concatenation of megabytes of them)."""
-
-    def __init__(self, template: _Template) -> None:
-        self.template = template
-        self.frames: list[int] = []
-        self.times: list[float] = []
-        self.blobs: list[bytes] = []
-        self.constants: list[list[pa.Array]] = [[] for _ in template.descriptors]
-        self.nbytes = 0
-
-    def add(self, frame: int, time: float, data: bytes, template: _Template) -> None:
-        self.blobs.append(data)
-        for column, array in zip(self.constants, template.constants):
-            if array is not None:
-                column.append(array)
-        self.nbytes += len(data) + 8 + template.nbytes  # as the Arrow arrays of a row would count
-        self.frames.append(frame)
-        self.times.append(time)
-
-    def columns(self) -> list[rr.ComponentColumn]:
-        offsets = np.zeros(len(self.blobs) + 1, dtype=np.int64)
-        np.cumsum([len(b) for b in self.blobs], out=offsets[1:])
-        if offsets[-1] >= 2**31:  # list<uint8> has 32-bit offsets; a chunk holds about CHUNK_BYTES
-            raise ValueError(f"{offsets[-1]} bytes of images in one chunk (at most 2 GiB)")
-        values = pa.py_buffer(b"".join(self.blobs))
-        blob = pa.ListArray.from_arrays(pa.array(offsets.astype(np.int32)),
-                                        pa.Array.from_buffers(pa.uint8(), len(values), [None, values]),
-                                        type=BLOB_TYPE)
-        out = []
-        for i, d in enumerate(self.template.descriptors):
-            array = blob if i == self.template.blob else pa.concat_arrays(self.constants[i])
-            out.append(rr.ComponentColumn(d, ArrowBatch(array)))
-        return out
